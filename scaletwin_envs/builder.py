@@ -1,0 +1,269 @@
+"""One procedural builder: a :class:`LoaderSpec` in, a MuJoCo model of that loader (at any size) out.
+
+The model is assembled in the reference pose (boom lowered, bucket floor on the ground) where every joint
+is at zero and every loop closure is satisfied. Lengths, masses, stiffness and time constants all follow the
+spec, so the same code builds an 11 kg RC miniature and an 80 t loader; the timestep follows √λ (Froude time).
+
+Names other modules rely on: bodies ``frame``, ``boom``, ``bucket``, ``payload``, ``bell_crank``, ``link_b``,
+``lift_barrel``, ``lift_rod``, ``tilt_barrel``, ``tilt_rod``; joints ``drive``, ``boom_hinge``,
+``bucket_hinge``, ``bell_crank_hinge``, ``link_b_hinge``, ``lift_barrel_hinge``, ``tilt_barrel_hinge`` and the
+cylinder slides ``lift_cylinder``, ``tilt_cylinder``; sites ``pin_O``, ``pin_21`` and one per pin; equality
+constraints ``link_b_to_bucket``, ``lift_rod_to_boom``, ``tilt_rod_to_bell_crank``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from scaletwin_envs.physics.kinematics import LinkagePose
+from scaletwin_envs.physics.mass_layout import ROD_FRACTION, chassis_com, cylinder_axis, linkage_layout
+from scaletwin_envs.specs.loader import GRAVITY, LoaderSpec
+
+HINGE_AXIS = (0.0, -1.0, 0.0)  # positive angles turn x towards z: boom up, bucket curled back
+BASE_TIMESTEP = 1e-3  # s at the ER12 (λ = 1); scaled by √λ
+SERVO_DROOP = 0.01  # a cylinder at relief force slips at this fraction of its rated speed (velocity servo gain)
+# Reflected inertia on each cylinder's slide, as a fraction of boom + bucket + rated load (kg): stands for the oil
+# column and keeps MuJoCo's constraint solver well conditioned when a stiff velocity servo drives a light rod
+# inside a closed loop (with a light rod the loaded linkage jitters). Scales with mass, so similarity is kept;
+# the Newton–Euler route accounts for it as an axial inertial force.
+CYLINDER_ARMATURE = 1.0
+PILE_COLUMNS = 48  # visual boxes drawing the pile surface
+
+
+@dataclass(frozen=True)
+class BuildOptions:
+    """Numerical settings derived from the spec (all scale with √λ or λ)."""
+
+    timestep: float
+    constraint_timeconst: float
+
+    @classmethod
+    def for_spec(cls, spec: LoaderSpec) -> BuildOptions:
+        dt = BASE_TIMESTEP * math.sqrt(spec.scale)
+        return cls(timestep=dt, constraint_timeconst=4.0 * dt)
+
+
+def _v3(p: np.ndarray | tuple[float, float], y: float = 0.0) -> list[float]:
+    return [float(p[0]), y, float(p[1])]
+
+
+def _inertial(body: mujoco.MjsBody, mass: float, com: np.ndarray, inertia: float) -> None:
+    body.explicitinertial = True
+    body.mass = mass
+    body.ipos = _v3(com)
+    body.inertia = [inertia, inertia, inertia]
+
+
+def _capsule(body: mujoco.MjsBody, a: np.ndarray, b: np.ndarray, radius: float, rgba: tuple[float, ...],
+             y: float = 0.0) -> None:
+    body.add_geom(type=mujoco.mjtGeom.mjGEOM_CAPSULE, fromto=_v3(a, y) + _v3(b, y), size=[radius, 0, 0],
+                  contype=0, conaffinity=0, rgba=list(rgba))
+
+
+def _hinge(body: mujoco.MjsBody, name: str) -> None:
+    body.add_joint(type=mujoco.mjtJoint.mjJNT_HINGE, name=name, axis=list(HINGE_AXIS))
+
+
+def build_spec(spec: LoaderSpec, options: BuildOptions | None = None) -> mujoco.MjSpec:
+    """The :class:`mujoco.MjSpec` of a loader (not compiled, so callers may edit it first)."""
+    opt = options or BuildOptions.for_spec(spec)
+    g, lay, s = spec.geometry, linkage_layout(spec), mujoco.MjSpec()
+    L = spec.characteristic_length
+    s.modelname = f"wheel_loader_{spec.name}".replace(" ", "_")
+    s.compiler.inertiafromgeom = mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_FALSE
+    s.option.timestep = opt.timestep
+    s.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    s.option.gravity = [0.0, 0.0, -GRAVITY]
+    s.visual.global_.offwidth, s.visual.global_.offheight = 640, 480
+    s.stat.extent = 3.0 * L
+    s.stat.center = [L, 0.0, 0.5 * L]
+    _world(s, spec, opt)
+    frame = s.worldbody.add_body(name="frame")
+    frame.add_joint(type=mujoco.mjtJoint.mjJNT_SLIDE, name="drive", axis=[1.0, 0.0, 0.0])
+    _inertial(frame, spec.masses.chassis, chassis_com(spec), spec.masses.chassis * L * L / 6.0)
+    _chassis_visual(frame, spec)
+    piv = np.asarray(g.boom_pivot)
+    for name in ("boom_pivot", "lift_frame_pin", "tilt_frame_pin"):
+        frame.add_site(name=name, pos=_v3(getattr(g, name)), size=[0.02 * L, 0, 0])
+    boom = _add_boom(frame, spec, lay, piv)
+    _add_bucket(boom, spec, lay, piv)
+    _add_bell_crank(boom, spec, lay, piv)
+    for which in ("lift", "tilt"):
+        _add_cylinder(frame, spec, lay, which)
+    _equalities(s, opt)
+    _actuators(s, spec)
+    return s
+
+
+def build_model(spec: LoaderSpec, options: BuildOptions | None = None) -> mujoco.MjModel:
+    """Compile the loader model."""
+    return build_spec(spec, options).compile()
+
+
+def _world(s: mujoco.MjSpec, spec: LoaderSpec, opt: BuildOptions) -> None:
+    L = spec.characteristic_length
+    w = s.worldbody
+    w.add_light(pos=[L, -2 * L, 4 * L], dir=[0, 0.5, -1])
+    w.add_geom(name="ground", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[20 * L, 4 * L, 0.1 * L],
+               rgba=[0.55, 0.52, 0.45, 1], friction=[0.6, 0.005, 0.0001],
+               solref=[opt.constraint_timeconst, 1.0])
+    for k in range(PILE_COLUMNS):
+        w.add_geom(name=f"pile_{k}", type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.05 * L, 0.4 * L, 1e-3 * L],
+                   pos=[0, 0, -L], contype=0, conaffinity=0, rgba=[0.62, 0.5, 0.33, 1])
+    w.add_camera(name="side", pos=[1.2 * L, -3.6 * L, 0.9 * L], xyaxes=[1, 0, 0, 0, 0, 1],
+                 mode=mujoco.mjtCamLight.mjCAMLIGHT_TRACKCOM)
+
+
+def _chassis_visual(frame: mujoco.MjsBody, spec: LoaderSpec) -> None:
+    L = spec.characteristic_length
+    frame.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, pos=[-0.75 * L, 0, 0.45 * L], size=[0.6 * L, 0.3 * L, 0.18 * L],
+                   contype=0, conaffinity=0, rgba=[0.9, 0.7, 0.1, 1])
+    for x in (-1.1 * L, -0.25 * L):
+        frame.add_geom(type=mujoco.mjtGeom.mjGEOM_CYLINDER, pos=[x, -0.35 * L, 0.25 * L], size=[0.25 * L, 0.06 * L, 0],
+                       quat=[math.cos(math.pi / 4), math.sin(math.pi / 4), 0, 0], contype=0, conaffinity=0,
+                       rgba=[0.1, 0.1, 0.1, 1])
+
+
+def _add_boom(frame: mujoco.MjsBody, spec: LoaderSpec, lay: dict, piv: np.ndarray) -> mujoco.MjsBody:
+    g, L = spec.geometry, spec.characteristic_length
+    boom = frame.add_body(name="boom", pos=_v3(piv))
+    _hinge(boom, "boom_hinge")
+    b = lay["boom"]
+    _inertial(boom, b.mass, b.com, b.inertia)
+    o, c, lb = (np.asarray(v) - piv for v in (g.pin_O, g.bell_crank_pivot, g.lift_boom_pin))
+    _capsule(boom, np.zeros(2), o, 0.035 * L, (0.9, 0.7, 0.1, 1))
+    _capsule(boom, c, 0.5 * o, 0.025 * L, (0.9, 0.7, 0.1, 1))
+    _capsule(boom, lb, 0.45 * o, 0.025 * L, (0.9, 0.7, 0.1, 1))
+    for name, p in (("bell_crank_pivot", c), ("lift_boom_pin", lb)):
+        boom.add_site(name=name, pos=_v3(p), size=[0.02 * L, 0, 0])
+    return boom
+
+
+def _add_bucket(boom: mujoco.MjsBody, spec: LoaderSpec, lay: dict, piv: np.ndarray) -> None:
+    g, L = spec.geometry, spec.characteristic_length
+    o = np.asarray(g.pin_O)
+    bucket = boom.add_body(name="bucket", pos=_v3(o - piv))
+    _hinge(bucket, "bucket_hinge")
+    b = lay["bucket"]
+    _inertial(bucket, b.mass, b.com, b.inertia)
+    heel, edge, top = (np.asarray(v) - o for v in (g.bucket_heel, g.bucket_edge, g.bucket_back_top))
+    half_w, t = 0.5 * g.bucket_width, 0.02 * L
+    inward = (edge - heel) + (top - heel)  # plates lie inside the outline so the outline is the contact surface
+    for a, z in ((heel, edge), (heel, top)):
+        vec = z - a
+        normal = np.array([-vec[1], vec[0]]) / float(np.hypot(*vec))
+        mid = 0.5 * (a + z) + t * (normal if np.dot(normal, inward) > 0 else -normal)
+        angle = math.atan2(vec[1], vec[0])
+        bucket.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, pos=_v3(mid), size=[0.5 * float(np.hypot(*vec)), half_w, t],
+                        quat=[math.cos(-angle / 2), 0, math.sin(-angle / 2), 0], rgba=[0.35, 0.35, 0.38, 1],
+                        friction=[0.5, 0.005, 0.0001])
+    for y in (-half_w, half_w):
+        _capsule(bucket, edge, top, 0.5 * t, (0.35, 0.35, 0.38, 1), y)
+    for name, p in (("pin_O", np.zeros(2)), ("pin_21", np.asarray(g.pin_21) - o), ("bucket_edge", edge),
+                    ("bucket_heel", heel), ("bucket_back_top", top)):
+        bucket.add_site(name=name, pos=_v3(p), size=[0.02 * L, 0, 0])
+    payload = bucket.add_body(name="payload")
+    _inertial(payload, 1e-9 * b.mass, b.com, 1e-9 * b.inertia)
+
+
+def _add_bell_crank(boom: mujoco.MjsBody, spec: LoaderSpec, lay: dict, piv: np.ndarray) -> None:
+    g, L = spec.geometry, spec.characteristic_length
+    c = np.asarray(g.bell_crank_pivot)
+    crank = boom.add_body(name="bell_crank", pos=_v3(c - piv))
+    _hinge(crank, "bell_crank_hinge")
+    b = lay["bell_crank"]
+    _inertial(crank, b.mass, b.com, b.inertia)
+    top, bottom = np.asarray(g.bell_crank_top) - c, np.asarray(g.bell_crank_bottom) - c
+    _capsule(crank, top, bottom, 0.02 * L, (0.2, 0.2, 0.2, 1), 0.05 * L)
+    crank.add_site(name="bell_crank_top", pos=_v3(top), size=[0.02 * L, 0, 0])
+    crank.add_site(name="bell_crank_bottom", pos=_v3(bottom), size=[0.02 * L, 0, 0])
+    link = crank.add_body(name="link_b", pos=_v3(bottom))
+    _hinge(link, "link_b_hinge")
+    b = lay["link_b"]
+    _inertial(link, b.mass, b.com, b.inertia)
+    tip = np.asarray(g.pin_21) - np.asarray(g.bell_crank_bottom)
+    _capsule(link, np.zeros(2), tip, 0.015 * L, (0.2, 0.2, 0.2, 1), 0.05 * L)
+    link.add_site(name="link_b_tip", pos=_v3(tip), size=[0.015 * L, 0, 0])
+
+
+def _add_cylinder(frame: mujoco.MjsBody, spec: LoaderSpec, lay: dict, which: str) -> None:
+    g, L = spec.geometry, spec.characteristic_length
+    cyl = spec.lift if which == "lift" else spec.tilt
+    start = np.asarray(g.lift_frame_pin if which == "lift" else g.tilt_frame_pin)
+    axis, ref_len = cylinder_axis(spec, which)
+    y = -0.12 * L if which == "lift" else 0.12 * L
+    barrel = frame.add_body(name=f"{which}_barrel", pos=_v3(start))
+    _hinge(barrel, f"{which}_barrel_hinge")
+    b = lay[f"{which}_barrel"]
+    _inertial(barrel, b.mass, b.com, b.inertia)
+    _capsule(barrel, np.zeros(2), axis * 0.95 * cyl.closed_length, 0.5 * cyl.bore * 1.3, (0.15, 0.15, 0.15, 1), y)
+    rod = barrel.add_body(name=f"{which}_rod")
+    rod.add_joint(type=mujoco.mjtJoint.mjJNT_SLIDE, name=f"{which}_cylinder", axis=_v3(axis),
+                  range=[cyl.closed_length - ref_len, cyl.closed_length + cyl.stroke - ref_len],
+                  armature=cylinder_armature(spec))
+    b = lay[f"{which}_rod"]
+    _inertial(rod, b.mass, b.com, b.inertia)
+    _capsule(rod, axis * (ref_len - ROD_FRACTION * cyl.closed_length), axis * ref_len, 0.5 * cyl.rod_diameter,
+             (0.8, 0.8, 0.85, 1), y)
+    rod.add_site(name=f"{which}_rod_tip", pos=_v3(axis * ref_len), size=[0.015 * L, 0, 0])
+
+
+def cylinder_armature(spec: LoaderSpec) -> float:
+    """Armature of each cylinder slide, kg."""
+    return CYLINDER_ARMATURE * (spec.masses.boom + spec.masses.bucket + spec.rated_load)
+
+
+def _equalities(s: mujoco.MjSpec, opt: BuildOptions) -> None:
+    for name, a, b in (("link_b_to_bucket", "pin_21", "link_b_tip"), ("lift_rod_to_boom", "lift_boom_pin", "lift_rod_tip"),
+                       ("tilt_rod_to_bell_crank", "bell_crank_top", "tilt_rod_tip")):
+        s.add_equality(name=name, type=mujoco.mjtEq.mjEQ_CONNECT, objtype=mujoco.mjtObj.mjOBJ_SITE,
+                       name1=a, name2=b, solref=[opt.constraint_timeconst, 1.0])
+
+
+def _actuators(s: mujoco.MjSpec, spec: LoaderSpec) -> None:
+    for which, cyl in (("lift", spec.lift), ("tilt", spec.tilt)):
+        act = s.add_actuator(name=which, target=f"{which}_cylinder", trntype=mujoco.mjtTrn.mjTRN_JOINT)
+        act.set_to_velocity(kv=cyl.max_extend_force / (SERVO_DROOP * cyl.extend_speed))
+        act.ctrlrange = [-cyl.retract_speed, cyl.extend_speed]
+        act.forcelimited = True
+        act.forcerange = [-cyl.max_retract_force, cyl.max_extend_force]
+    traction = spec.traction_coefficient * spec.weight
+    act = s.add_actuator(name="drive", target="drive", trntype=mujoco.mjtTrn.mjTRN_JOINT)
+    act.set_to_velocity(kv=traction / (0.05 * spec.travel_speed))
+    act.ctrlrange = [-spec.travel_speed, spec.travel_speed]
+    act.forcelimited = True
+    act.forcerange = [-traction, traction]
+
+
+def qpos_for_pose(model: mujoco.MjModel, spec: LoaderSpec, pose: LinkagePose, drive: float = 0.0) -> np.ndarray:
+    """Joint positions that assemble ``pose`` exactly (every loop closed)."""
+    _, lift_ref = cylinder_axis(spec, "lift")
+    _, tilt_ref = cylinder_axis(spec, "tilt")
+    values = {
+        "drive": drive, "boom_hinge": pose.boom, "bucket_hinge": pose.bucket, "bell_crank_hinge": pose.bell_crank,
+        "link_b_hinge": pose.link_b, "lift_barrel_hinge": pose.lift_angle, "lift_cylinder": pose.lift_length - lift_ref,
+        "tilt_barrel_hinge": pose.tilt_angle, "tilt_cylinder": pose.tilt_length - tilt_ref,
+    }
+    qpos = model.qpos0.copy()
+    for name, v in values.items():
+        qpos[model.joint(name).qposadr[0]] = v
+    return qpos
+
+
+def set_payload(model: mujoco.MjModel, data: mujoco.MjData, mass: float, com_local: np.ndarray,
+                radius_of_gyration: float) -> None:
+    """Write the load carried by the bucket into the ``payload`` body (kg, m relative to O) and refresh
+    MuJoCo's derived constants. A floor of 1e-9 × bucket mass keeps the body well defined when empty."""
+    b = model.body("payload").id
+    floor = 1e-9 * float(model.body_mass[model.body("bucket").id])
+    m = max(mass, floor)
+    model.body_mass[b] = m
+    model.body_ipos[b] = _v3(com_local)
+    model.body_inertia[b] = m * radius_of_gyration**2
+    qpos = data.qpos.copy()  # mj_setConst leaves qpos at qpos0
+    mujoco.mj_setConst(model, data)
+    data.qpos[:] = qpos

@@ -1,0 +1,68 @@
+"""Bucket volume and the position of the material it carries (planar cross-section × width)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from scaletwin_envs.specs.loader import LinkageGeometry
+
+HEAP_SLOPE = 0.5  # rise over run of the heap above the strike line (1:2, ISO 7546 / SAE J742)
+
+
+def _section(g: LinkageGeometry) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    return np.asarray(g.bucket_heel), np.asarray(g.bucket_edge), np.asarray(g.bucket_back_top)
+
+
+def struck_area(g: LinkageGeometry) -> float:
+    """Cross-section below the strike line (edge to top of the back wall), m²."""
+    heel, edge, top = _section(g)
+    return 0.5 * abs(float(np.cross(edge - heel, top - heel)))
+
+
+def heap_area(g: LinkageGeometry) -> float:
+    """Triangular heap at a 1:2 slope on the strike line, m²."""
+    _, edge, top = _section(g)
+    span = float(np.linalg.norm(edge - top))
+    return 0.25 * span * span * HEAP_SLOPE
+
+
+def heaped_capacity(g: LinkageGeometry) -> float:
+    """Rated heaped volume, m³."""
+    return (struck_area(g) + heap_area(g)) * g.bucket_width
+
+
+def load_centroid(g: LinkageGeometry, fill: float) -> np.ndarray:
+    """Centroid (x, z) of the load in the reference pose for a volume fill fraction in [0, 1.2], m.
+
+    Material settles into the corner between floor and back wall first, so the centroid moves from the
+    struck triangle's heel region towards the heaped section's centroid as the bucket fills.
+    """
+    heel, edge, top = _section(g)
+    struck_c = (heel + edge + top) / 3.0
+    mid = 0.5 * (edge + top)
+    normal = np.array([-(top - edge)[1], (top - edge)[0]])
+    normal = normal / (np.linalg.norm(normal) or 1.0)
+    if np.dot(normal, mid - heel) < 0:
+        normal = -normal
+    heap_c = mid + normal * (math.sqrt(heap_area(g) / HEAP_SLOPE) * HEAP_SLOPE / 3.0)
+    a_s, a_h = struck_area(g), heap_area(g)
+    full_c = (struck_c * a_s + heap_c * a_h) / (a_s + a_h)
+    corner_c = heel + (struck_c - heel) * 0.55
+    f = float(np.clip(fill, 0.0, 1.2))
+    return corner_c + (full_c - corner_c) * min(f, 1.0)
+
+
+def capacity_fraction(pitch: float, rack_back: float = 0.35) -> float:
+    """Fraction of the heaped capacity the bucket holds at a pitch (rad, + curled back) before spilling.
+
+    Curled back past ``rack_back`` the full heap is held (plus 10 % heaped above rating); level, the heap
+    slides off over the edge (≈ struck volume); tipped forward the struck volume drains until, at about
+    −0.9 rad, the bucket is empty (dumping).
+    """
+    if pitch >= rack_back:
+        return 1.1
+    if pitch >= 0.0:
+        return 0.75 + 0.35 * pitch / rack_back
+    return max(0.0, 0.75 * (1.0 + pitch / 0.9))

@@ -1,0 +1,73 @@
+"""Soil resistance on a bucket from the fundamental earthmoving equation (Reece 1964; McKyes 1985).
+
+A blade of width w at depth d with rake angle ρ (blade from the direction of travel) in Mohr–Coulomb soil
+needs ``P = w (γ d² N_γ + c d N_c + q d N_q + c_a d N_ca)``; the failure angle β minimises P. P acts at the
+soil–metal friction angle δ from the blade normal, so it resists travel with ``P sin(ρ+δ)`` and presses the
+blade into the soil with ``P cos(ρ+δ)``. Formulas as in ``shared/reference/physics.md``.
+"""
+
+from __future__ import annotations
+
+import math
+from functools import lru_cache
+
+import numpy as np
+
+from scaletwin_envs.specs.soil import SoilSpec
+
+RAKE_MIN, RAKE_MAX = math.radians(15.0), math.radians(90.0)
+_RAKES = np.linspace(RAKE_MIN, RAKE_MAX, 76)
+_BETAS = np.linspace(math.radians(5.0), math.radians(85.0), 321)
+
+
+def n_factors(rake: float, phi: float, delta: float, beta: np.ndarray | float) -> tuple[np.ndarray, ...]:
+    """N_γ, N_c, N_q, N_ca for rake ρ, friction φ, wall friction δ and failure angle β (all rad)."""
+    cot = lambda a: 1.0 / np.tan(a)  # noqa: E731
+    denom = np.cos(rake + delta) + np.sin(rake + delta) * cot(np.asarray(beta) + phi)
+    n_gamma = (cot(beta) + cot(rake)) / (2.0 * denom)
+    n_c = (1.0 + cot(beta) * cot(np.asarray(beta) + phi)) / denom
+    n_ca = (1.0 - cot(rake) * cot(np.asarray(beta) + phi)) / denom
+    return n_gamma, n_c, 2.0 * n_gamma, n_ca
+
+
+@lru_cache(maxsize=64)
+def _table(soil: SoilSpec) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per rake: the β-minimised coefficients of d² (γ N_γ) and of d (c N_c + c_a N_ca), per unit width."""
+    quad = np.empty_like(_RAKES)
+    lin = np.empty_like(_RAKES)
+    for k, rake in enumerate(_RAKES):
+        ng, nc, _, nca = n_factors(rake, soil.friction_angle, soil.wall_friction_angle, _BETAS)
+        # Minimise at a reference depth of 1 m; the minimising β barely moves with depth.
+        total = soil.unit_weight * ng + soil.cohesion * nc + soil.adhesion * nca
+        valid = np.isfinite(total) & (ng > 0)
+        best = int(np.argmin(np.where(valid, total, np.inf)))
+        quad[k] = soil.unit_weight * ng[best]
+        lin[k] = max(soil.cohesion * nc[best] + soil.adhesion * nca[best], 0.0)
+    return _RAKES, quad, lin, np.sin(_RAKES + soil.wall_friction_angle)
+
+
+def blade_force(soil: SoilSpec, width: float, depth: float, rake: float) -> tuple[float, float]:
+    """Resistance along travel and force pressing into the soil (N) of a blade at ``depth`` (m)."""
+    if depth <= 0.0:
+        return 0.0, 0.0
+    rakes, quad, lin, _ = _table(soil)
+    r = min(max(rake, RAKE_MIN), RAKE_MAX)
+    p = width * (float(np.interp(r, rakes, quad)) * depth * depth + float(np.interp(r, rakes, lin)) * depth)
+    return p * math.sin(r + soil.wall_friction_angle), p * math.cos(r + soil.wall_friction_angle)
+
+
+def bearing_pressure(soil: SoilSpec, depth: float) -> float:
+    """Ultimate bearing pressure at the cutting edge (Pa): c N_c + γ d N_q (Prandtl–Reissner factors)."""
+    phi = soil.friction_angle
+    n_q = math.exp(math.pi * math.tan(phi)) * math.tan(math.pi / 4 + phi / 2) ** 2
+    n_c = (n_q - 1.0) / math.tan(phi) if phi > 1e-6 else math.pi + 2.0
+    return soil.cohesion * n_c + soil.unit_weight * max(depth, 0.0) * n_q
+
+
+def side_drag(soil: SoilSpec, depth: float, length: float) -> float:
+    """Friction and adhesion on both side plates (N) buried ``depth`` over ``length`` (m), at-rest pressure."""
+    if depth <= 0.0 or length <= 0.0:
+        return 0.0
+    k0 = 1.0 - math.sin(soil.friction_angle)
+    normal = 0.5 * k0 * soil.unit_weight * depth * depth * length
+    return 2.0 * (normal * math.tan(soil.wall_friction_angle) + soil.adhesion * depth * length)

@@ -1,0 +1,116 @@
+"""Planar position kinematics of the Z-bar linkage, independent of any simulator.
+
+The configuration is two angles relative to the reference pose (rad, counter-clockwise in x–z): ``boom``
+(positive raises the boom) and ``bucket`` (bucket relative to the boom; positive curls the bucket back).
+Everything else (bell crank, link B, cylinder angles and lengths) follows by closing the loops with circle
+intersections. The inverse problem, from cylinder lengths to angles, closes the same loops the other way.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from scaletwin_envs.physics.planar import circle_intersection, cross2, heading, rotate_about
+from scaletwin_envs.specs.loader import LinkageGeometry
+
+
+class LinkageUnreachable(ValueError):
+    """The requested pose cannot be assembled (a loop does not close)."""
+
+
+@dataclass(frozen=True)
+class LinkagePose:
+    """Every pin position (m, machine frame) and every joint angle of one assembled pose."""
+
+    boom: float  # rad, relative to reference
+    bucket: float  # rad, bucket relative to boom
+    bell_crank: float  # rad, relative to boom
+    link_b: float  # rad, relative to bell crank
+    lift_angle: float  # rad, lift cylinder heading change
+    tilt_angle: float  # rad
+    lift_length: float  # m, pin to pin
+    tilt_length: float  # m
+    points: dict[str, np.ndarray]
+
+    @property
+    def bucket_pitch(self) -> float:
+        """Absolute rotation of the bucket from the reference pose, rad."""
+        return self.boom + self.bucket
+
+
+def _p(v: tuple[float, float]) -> np.ndarray:
+    return np.asarray(v, dtype=float)
+
+
+def solve_pose(g: LinkageGeometry, boom: float, bucket: float) -> LinkagePose:
+    """Assemble the linkage at boom and bucket angles (rad, relative to the reference pose)."""
+    piv = _p(g.boom_pivot)
+    pts: dict[str, np.ndarray] = {"boom_pivot": piv}
+    for name in ("pin_O", "bell_crank_pivot", "lift_boom_pin"):
+        pts[name] = rotate_about(_p(getattr(g, name)), piv, boom)
+    o_ref, o = _p(g.pin_O), pts["pin_O"]
+    for name in ("pin_21", "bucket_heel", "bucket_edge", "bucket_back_top"):
+        pts[name] = o + rotate_about(_p(getattr(g, name)), o_ref, boom + bucket) - o_ref
+    c_ref, c = _p(g.bell_crank_pivot), pts["bell_crank_pivot"]
+    bottom_ref, p21_ref = _p(g.bell_crank_bottom), _p(g.pin_21)
+    side = cross2(p21_ref - c_ref, bottom_ref - c_ref)
+    bottom = circle_intersection(c, float(np.linalg.norm(bottom_ref - c_ref)), pts["pin_21"],
+                                 float(np.linalg.norm(p21_ref - bottom_ref)), side)
+    if bottom is None:
+        raise LinkageUnreachable(f"link B cannot close at boom={boom:.3f} rad, bucket={bucket:.3f} rad")
+    pts["bell_crank_bottom"] = bottom
+    crank = heading(bottom - c) - heading(bottom_ref - c_ref) - boom
+    pts["bell_crank_top"] = c + rotate_about(_p(g.bell_crank_top), c_ref, boom + crank) - c_ref
+    link_b = (heading(pts["pin_21"] - bottom) - heading(p21_ref - bottom_ref)) - (boom + crank)
+    lift_vec, lift_ref = pts["lift_boom_pin"] - _p(g.lift_frame_pin), _p(g.lift_boom_pin) - _p(g.lift_frame_pin)
+    tilt_vec, tilt_ref = pts["bell_crank_top"] - _p(g.tilt_frame_pin), _p(g.bell_crank_top) - _p(g.tilt_frame_pin)
+    pts["lift_frame_pin"], pts["tilt_frame_pin"] = _p(g.lift_frame_pin), _p(g.tilt_frame_pin)
+    return LinkagePose(
+        boom=boom, bucket=bucket, bell_crank=crank, link_b=link_b,
+        lift_angle=heading(lift_vec) - heading(lift_ref), tilt_angle=heading(tilt_vec) - heading(tilt_ref),
+        lift_length=float(np.linalg.norm(lift_vec)), tilt_length=float(np.linalg.norm(tilt_vec)), points=pts,
+    )
+
+
+def boom_angle_for_lift_length(g: LinkageGeometry, lift_length: float) -> float:
+    """Boom angle (rad) at which the lift cylinder measures ``lift_length`` (m) pin to pin."""
+    piv, ref = _p(g.boom_pivot), _p(g.lift_boom_pin)
+    frame_pin = _p(g.lift_frame_pin)
+    side = cross2(frame_pin - piv, ref - piv)
+    pin = circle_intersection(piv, float(np.linalg.norm(ref - piv)), frame_pin, lift_length, side)
+    if pin is None:
+        raise LinkageUnreachable(f"lift cylinder length {lift_length:.4f} m cannot be assembled")
+    return _wrap(heading(pin - piv) - heading(ref - piv))
+
+
+def bucket_angle_for_tilt_length(g: LinkageGeometry, boom: float, tilt_length: float) -> float:
+    """Bucket angle relative to the boom (rad) at which the tilt cylinder measures ``tilt_length`` (m)."""
+    c_ref, top_ref, bottom_ref = _p(g.bell_crank_pivot), _p(g.bell_crank_top), _p(g.bell_crank_bottom)
+    piv, frame_pin = _p(g.boom_pivot), _p(g.tilt_frame_pin)
+    c = rotate_about(c_ref, piv, boom)
+    side = cross2(frame_pin - c_ref, top_ref - c_ref)
+    top = circle_intersection(c, float(np.linalg.norm(top_ref - c_ref)), frame_pin, tilt_length, side)
+    if top is None:
+        raise LinkageUnreachable(f"tilt cylinder length {tilt_length:.4f} m cannot be assembled")
+    crank = heading(top - c) - heading(top_ref - c_ref) - boom
+    bottom = c + rotate_about(bottom_ref, c_ref, boom + crank) - c_ref
+    o_ref, p21_ref = _p(g.pin_O), _p(g.pin_21)
+    o = rotate_about(o_ref, piv, boom)
+    side = cross2(bottom_ref - o_ref, p21_ref - o_ref)
+    p21 = circle_intersection(o, float(np.linalg.norm(p21_ref - o_ref)), bottom,
+                              float(np.linalg.norm(p21_ref - bottom_ref)), side)
+    if p21 is None:
+        raise LinkageUnreachable(f"link B cannot close at tilt length {tilt_length:.4f} m")
+    return _wrap(heading(p21 - o) - heading(p21_ref - o_ref) - boom)
+
+
+def pose_from_cylinders(g: LinkageGeometry, lift_length: float, tilt_length: float) -> LinkagePose:
+    """The assembled pose for given cylinder pin-to-pin lengths (m)."""
+    boom = boom_angle_for_lift_length(g, lift_length)
+    return solve_pose(g, boom, bucket_angle_for_tilt_length(g, boom, tilt_length))
+
+
+def _wrap(a: float) -> float:
+    return float((a + np.pi) % (2 * np.pi) - np.pi)

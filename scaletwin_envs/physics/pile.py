@@ -1,0 +1,69 @@
+"""The soil pile: a planar height profile along x on a strip as wide as the bucket, consumed as it is dug."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+class Pile:
+    """Height field ``h(x)`` (m) on a uniform grid; volumes are per the strip ``width`` (m).
+
+    The pile rises from its toe at ``toe_x`` at the repose angle to a flat top of ``height``. ``initial`` keeps
+    the undisturbed profile, whose material beside the dug strip still drags on the bucket's side plates.
+    """
+
+    def __init__(self, toe_x: float, height: float, repose: float, length: float, width: float,
+                 cells: int = 240) -> None:
+        if height <= 0 or length <= 0 or width <= 0:
+            raise ValueError("pile height, length and width must be > 0")
+        self.x = np.linspace(toe_x, toe_x + length, cells)
+        self.dx = float(self.x[1] - self.x[0])
+        self.width = width
+        self.h = np.minimum(height, (self.x - toe_x) * math.tan(repose)).clip(min=0.0)
+        self.initial = self.h.copy()
+
+    def surface(self, x: float) -> float:
+        """Current height at x (0 outside the pile), m."""
+        return float(np.interp(x, self.x, self.h, left=0.0, right=0.0))
+
+    def initial_surface(self, x: float) -> float:
+        return float(np.interp(x, self.x, self.initial, left=0.0, right=0.0))
+
+    @property
+    def volume(self) -> float:
+        """Material left in the strip, m³."""
+        return float(self.h.sum() * self.dx * self.width)
+
+    def overlap(self, polygon: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Cell indices and heights (m) of pile material lying inside a convex polygon (N×2, x–z)."""
+        lo, hi = polygon[:, 0].min(), polygon[:, 0].max()
+        idx = np.nonzero((self.x >= lo) & (self.x <= hi))[0]
+        if idx.size == 0:
+            return idx, np.zeros(0)
+        xs = self.x[idx]
+        zs = np.full((len(polygon), idx.size), np.nan)
+        for k in range(len(polygon)):
+            (x0, z0), (x1, z1) = polygon[k], polygon[(k + 1) % len(polygon)]
+            if abs(x1 - x0) < 1e-12:
+                continue
+            t = (xs - x0) / (x1 - x0)
+            inside = (t >= 0.0) & (t <= 1.0)
+            zs[k, inside] = z0 + t[inside] * (z1 - z0)
+        counted = np.isfinite(zs).sum(axis=0) >= 2
+        z_lo = np.where(counted, np.nanmin(np.where(np.isfinite(zs), zs, np.inf), axis=0), 0.0)
+        z_hi = np.where(counted, np.nanmax(np.where(np.isfinite(zs), zs, -np.inf), axis=0), 0.0)
+        depth = (np.minimum(self.h[idx], z_hi) - z_lo).clip(min=0.0) * counted
+        return idx, depth
+
+    def remove(self, idx: np.ndarray, heights: np.ndarray) -> float:
+        """Take material from columns (the material above slides down); returns the volume removed, m³."""
+        self.h[idx] = (self.h[idx] - heights).clip(min=0.0)
+        return float(heights.sum() * self.dx * self.width)
+
+    def deposit(self, x: float, volume: float, spread: float) -> None:
+        """Drop ``volume`` (m³) evenly over ``spread`` (m) around x; material off the grid is not kept."""
+        sel = np.abs(self.x - x) <= max(spread / 2, self.dx)
+        if sel.any() and volume > 0:
+            self.h[sel] += volume / (sel.sum() * self.dx * self.width)

@@ -1,0 +1,312 @@
+"""Scoring and ranking candidate pi-group sets against data, with a shuffled-data baseline.
+
+The paper's filter (``PearsonRMS``): for a set, the score is the root mean square, over the non-target groups, of
+the Pearson correlation between the target group ``pi1`` and that group. Alternatives share one interface,
+:meth:`Scorer.score`, and are selected by name (:data:`SCORERS`) or passed as objects.
+
+Shuffled baseline: every raw *variable* is permuted across rows independently (one permutation per variable, the
+same shuffled datasets for all sets), then all groups are recomputed and scored. This removes every physical
+relation but keeps the algebraic one: ratios that share a variable (``F21/F31`` and ``m_b*a1/F31`` both contain
+``F31``) stay correlated after the shuffle, so that spurious part shows up in the baseline and ``excess = score -
+baseline_mean`` measures only what the data adds. (Shuffling the target group against the other groups would drive
+every baseline to ~0 and hide the shared-variable artefact.)
+
+Rows: a row where the target or a group is non-finite (zero to a negative power, negative base to a fractional
+power, ...) or outside a scorer's domain (e.g. ``log`` of 0) is dropped per set and counted in ``n_dropped``. A set
+left with fewer rows than the scorer needs gets a NaN score *and* a ``note`` saying why, and is ranked last.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Mapping, Sequence
+from typing import Literal
+
+import numpy as np
+import pandas as pd
+from scipy.spatial import cKDTree
+from scipy.special import digamma
+from scipy.stats import rankdata
+
+from scaling.groups import PiGroup
+from scaling.pi_theorem import PiSet
+
+DataLike = Mapping[str, np.ndarray] | pd.DataFrame
+RankBy = Literal["score", "excess", "z"]
+
+
+class Scorer(ABC):
+    """Strategy: how strongly a target group relates to the other groups of a set (higher = stronger)."""
+
+    name: str = "scorer"
+    min_rows: int = 3
+
+    @abstractmethod
+    def score(self, target_values: np.ndarray, group_values: np.ndarray) -> float:
+        """Score one set. ``target_values``: shape ``(n,)``; ``group_values``: ``(n, m)``, m >= 0 other groups;
+        all finite and inside :meth:`domain`. Returns a finite float (0.0 when ``m == 0``)."""
+
+    def domain(self, target_values: np.ndarray, group_values: np.ndarray) -> np.ndarray:
+        """Boolean mask of usable rows; by default rows where every value is finite."""
+        return np.isfinite(target_values) & np.isfinite(group_values).all(axis=1)
+
+
+def _correlations(t: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """Pearson r of ``t`` with each column of ``g``; a constant column (or target) gives r = 0, not NaN."""
+    tc, gc = t - t.mean(), g - g.mean(axis=0)
+    denom = np.sqrt((tc**2).sum() * (gc**2).sum(axis=0))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        r = (tc @ gc) / denom
+    return np.where(denom > 0, np.clip(r, -1.0, 1.0), 0.0)
+
+
+def _rms(values: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.square(values)))) if values.size else 0.0
+
+
+class PearsonRMS(Scorer):
+    """The paper's filter: RMS over non-target groups of Pearson r(pi1, pi_j), in [0, 1].
+
+    Pearson r is not invariant to inverting a group (r(x, y) != -r(x, 1/y)), while a set holds each group only in
+    its canonical orientation (see :class:`scaling.pi_theorem.PiSet`). ``orientation="best"`` (default) scores each
+    group in the orientation with the larger |r|, i.e. the paper's filter applied to all ``2**(k-1)`` orientations
+    of the set, keeping the best; zero-valued groups are then outside the domain. ``"canonical"`` scores the groups
+    as given. ``log=True`` correlates ``log|pi|`` instead (any power of a group scores the same; zeros dropped).
+    """
+
+    name = "pearson"
+
+    def __init__(self, orientation: Literal["best", "canonical"] = "best", log: bool = False) -> None:
+        if orientation not in ("best", "canonical"):
+            raise ValueError(f"orientation must be 'best' or 'canonical', got {orientation!r}")
+        self.orientation, self.log = orientation, log
+
+    def domain(self, target_values: np.ndarray, group_values: np.ndarray) -> np.ndarray:
+        mask = super().domain(target_values, group_values)
+        if self.log:
+            mask &= target_values != 0
+        if self.log or self.orientation == "best":
+            mask &= (group_values != 0).all(axis=1)
+        return mask
+
+    def score(self, target_values: np.ndarray, group_values: np.ndarray) -> float:
+        if self.log:
+            return _rms(_correlations(np.log(np.abs(target_values)), np.log(np.abs(group_values))))
+        r = np.abs(_correlations(target_values, group_values))
+        if self.orientation == "best":
+            r = np.maximum(r, np.abs(_correlations(target_values, 1.0 / group_values)))
+        return _rms(r)
+
+
+class SpearmanRMS(Scorer):
+    """RMS of Spearman rank correlations: invariant to monotone transforms (``Re`` vs ``1/Re`` score the same)."""
+
+    name = "spearman"
+
+    def score(self, target_values: np.ndarray, group_values: np.ndarray) -> float:
+        if group_values.shape[1] == 0:
+            return 0.0
+        return _rms(_correlations(rankdata(target_values), rankdata(group_values, axis=0)))
+
+
+class MutualInformation(Scorer):
+    """Kraskov-Stoegbauer-Grassberger (KSG, estimator 1) mutual information in nats, on rank-transformed data.
+
+    ``joint=True``: I(pi1; pi2..pik) of the whole set. ``joint=False``: RMS over groups of max(I(pi1; pi_j), 0).
+    Ranks (copula transform; MI is invariant to monotone maps) plus a 1e-10 deterministic jitter break ties;
+    at most ``max_rows`` rows (an evenly spaced subsample) are used to bound the O(n log n) cost.
+    """
+
+    name = "mi"
+
+    def __init__(self, k: int = 3, joint: bool = True, max_rows: int = 2000) -> None:
+        self.k, self.joint, self.max_rows = k, joint, max_rows
+        self.min_rows = k + 2
+
+    def score(self, target_values: np.ndarray, group_values: np.ndarray) -> float:
+        if group_values.shape[1] == 0:
+            return 0.0
+        idx = np.linspace(0, len(target_values) - 1, min(len(target_values), self.max_rows)).astype(int)
+        t, g = _copula(target_values[idx, None]), _copula(group_values[idx])
+        if self.joint:
+            return _ksg(t, g, self.k)
+        return _rms(np.array([max(_ksg(t, g[:, [j]], self.k), 0.0) for j in range(g.shape[1])]))
+
+
+def _copula(x: np.ndarray) -> np.ndarray:
+    jitter = np.random.default_rng(0).standard_normal(x.shape) * 1e-10
+    return rankdata(x, axis=0) / len(x) + jitter
+
+
+def _ksg(x: np.ndarray, y: np.ndarray, k: int) -> float:
+    """KSG estimator 1 of I(x; y) with the max-norm; x: (n, dx), y: (n, dy)."""
+    n = len(x)
+    eps = cKDTree(np.hstack([x, y])).query(np.hstack([x, y]), k=k + 1, p=np.inf)[0][:, -1]
+    radius = np.nextafter(eps, 0)
+    nx = cKDTree(x).query_ball_point(x, radius, p=np.inf, return_length=True) - 1
+    ny = cKDTree(y).query_ball_point(y, radius, p=np.inf, return_length=True) - 1
+    return float(digamma(k) + digamma(n) - np.mean(digamma(nx + 1) + digamma(ny + 1)))
+
+
+class CrossValidatedR2(Scorer):
+    """Out-of-fold R^2 of a least-squares fit of pi1 on the other groups (with intercept).
+
+    ``log=True`` (default) fits the power law ``log|pi1| = c + sum a_j log|pi_j|`` (rows with a zero value are
+    outside the domain and dropped); ``log=False`` fits ``pi1`` linearly on the raw groups. Folds are
+    ``n_folds`` contiguous blocks (time-ordered data are not leaked across folds); R^2 = 1 - SSE_oof / SST,
+    pooled over folds, so it can be negative.
+    """
+
+    name = "cv_r2"
+
+    def __init__(self, n_folds: int = 5, log: bool = True) -> None:
+        self.n_folds, self.log = n_folds, log
+        self.min_rows = 2 * n_folds
+
+    def domain(self, target_values: np.ndarray, group_values: np.ndarray) -> np.ndarray:
+        mask = super().domain(target_values, group_values)
+        if self.log:
+            mask &= (target_values != 0) & (group_values != 0).all(axis=1)
+        return mask
+
+    def score(self, target_values: np.ndarray, group_values: np.ndarray) -> float:
+        y, x = target_values, group_values
+        if self.log:
+            y, x = np.log(np.abs(y)), np.log(np.abs(x))
+        design = np.column_stack([np.ones(len(y)), x])
+        sst = float(np.sum((y - y.mean()) ** 2))
+        if group_values.shape[1] == 0 or sst == 0:
+            return 0.0
+        sse = 0.0
+        for test in np.array_split(np.arange(len(y)), self.n_folds):
+            train = np.setdiff1d(np.arange(len(y)), test)
+            coef = np.linalg.lstsq(design[train], y[train], rcond=None)[0]
+            sse += float(np.sum((y[test] - design[test] @ coef) ** 2))
+        return 1.0 - sse / sst
+
+
+SCORERS: dict[str, type[Scorer]] = {c.name: c for c in (PearsonRMS, SpearmanRMS, MutualInformation, CrossValidatedR2)}
+
+
+def get_scorer(scorer: str | Scorer) -> Scorer:
+    """A scorer object from a name in :data:`SCORERS` (default settings) or the object itself."""
+    if isinstance(scorer, Scorer):
+        return scorer
+    if scorer not in SCORERS:
+        raise ValueError(f"unknown scorer {scorer!r}; choose one of {sorted(SCORERS)} or pass a Scorer")
+    return SCORERS[scorer]()
+
+
+def as_columns(data: DataLike, names: Sequence[str]) -> dict[str, np.ndarray]:
+    """The named raw variables of ``data`` as equal-length 1-D float arrays.
+
+    Raises:
+        ValueError: a variable is missing or the columns differ in length.
+    """
+    missing = [n for n in names if n not in data]
+    if missing:
+        raise ValueError(f"data lacks variables {missing}; has {sorted(map(str, data.keys()))}")
+    cols = {n: np.asarray(data[n], dtype=float).ravel() for n in names}
+    lengths = {n: len(c) for n, c in cols.items()}
+    if len(set(lengths.values())) > 1:
+        raise ValueError(f"data columns differ in length: {lengths}")
+    return cols
+
+
+def rank_pi_sets(sets: Sequence[PiSet], data: DataLike, scorer: str | Scorer = "pearson", n_shuffles: int = 20, *,
+                 seed: int = 0, rank_by: RankBy = "excess",
+                 reference: Literal["group", "variable"] = "group") -> pd.DataFrame:
+    """Score every set on ``data`` and against the shuffled baseline (module docstring); best first.
+
+    Args:
+        sets: candidate sets sharing one target (e.g. from :func:`scaling.pi_theorem.enumerate_pi_sets`).
+        data: raw variables by name, any consistent units (groups are dimensionless).
+        scorer: a :class:`Scorer` or a name in :data:`SCORERS` (``"pearson"`` is the paper's filter).
+        n_shuffles: shuffled datasets for the baseline; 0 (no baseline) or >= 2.
+        seed: seeds the permutations, so rankings are reproducible.
+        rank_by: ``"score"`` (the paper), ``"excess"`` (score minus baseline mean; default) or ``"z"``. Ties
+            (values equal to 10 decimals) keep the input order, so unit changes cannot reorder them.
+        reference: ``"group"`` correlates the target group ``pi1`` with the others (default); ``"variable"``
+            uses the raw target variable instead, as the paper's text words it.
+
+    Returns:
+        One row per set: ``rank, set_id`` (position in ``sets``), ``origin, description, groups, score,
+        baseline_mean, baseline_std, excess, z, n_used, n_dropped, note``; unscorable sets last with a ``note``.
+    """
+    if not sets:
+        raise ValueError("rank_pi_sets needs at least one PiSet")
+    if len({s.target for s in sets}) != 1:
+        raise ValueError(f"all sets must share one target, got {sorted({s.target for s in sets})}")
+    if n_shuffles == 1 or n_shuffles < 0:
+        raise ValueError(f"n_shuffles must be 0 or >= 2 (a baseline needs a spread), got {n_shuffles}")
+    if rank_by not in ("score", "excess", "z") or (rank_by != "score" and n_shuffles == 0):
+        raise ValueError(f"rank_by={rank_by!r} needs 'score', or 'excess'/'z' with n_shuffles >= 2")
+    if reference not in ("group", "variable"):
+        raise ValueError(f"reference must be 'group' or 'variable', got {reference!r}")
+    scorer_obj = get_scorer(scorer)
+    names = sorted({v for s in sets for g in s.groups for v in g.exponents} | {sets[0].target})
+    cols = as_columns(data, names)
+    rng = np.random.default_rng(seed)
+    datasets = [cols] + [{n: c[rng.permutation(len(c))] for n, c in cols.items()} for _ in range(n_shuffles)]
+    caches: list[dict] = [{} for _ in datasets]
+    rows = [_row(i, s, scorer_obj, datasets, caches, reference) for i, s in enumerate(sets)]
+    table = pd.DataFrame(rows)
+    order = np.lexsort((table["set_id"], -np.round(table[rank_by].to_numpy(float), 10)))
+    table = table.iloc[order].reset_index(drop=True)  # lexsort puts NaN keys last
+    table.insert(0, "rank", np.arange(1, len(table) + 1))
+    table.attrs.update(scorer=scorer_obj.name, rank_by=rank_by, n_shuffles=n_shuffles, seed=seed, reference=reference)
+    return table
+
+
+def select_pi_set(sets: Sequence[PiSet], data: DataLike, scorer: str | Scorer = "pearson", n_shuffles: int = 20,
+                  **kwargs: object) -> PiSet:
+    """The best set of :func:`rank_pi_sets` (same arguments).
+
+    Raises:
+        ValueError: no set could be scored (every one lacks usable rows).
+    """
+    table = rank_pi_sets(sets, data, scorer, n_shuffles, **kwargs)  # type: ignore[arg-type]
+    best = table.iloc[0]
+    if np.isnan(best[table.attrs["rank_by"]]):
+        raise ValueError(f"no set could be scored: {best['note']}")
+    return sets[int(best["set_id"])]
+
+
+def _row(index: int, pi_set: PiSet, scorer: Scorer, datasets: list[dict[str, np.ndarray]], caches: list[dict],
+         reference: str) -> dict[str, object]:
+    score, used, dropped, note = _score(scorer, *_values(pi_set, datasets[0], caches[0], reference))
+    baseline = np.array([_score(scorer, *_values(pi_set, d, c, reference))[0]
+                         for d, c in zip(datasets[1:], caches[1:], strict=True)])
+    mean, std, excess, z = np.nan, np.nan, np.nan, np.nan
+    valid = baseline[~np.isnan(baseline)]
+    if len(valid) >= 2:
+        mean, std = float(valid.mean()), float(valid.std(ddof=1))
+        excess = score - mean
+        z = excess / std if std > 0 else (0.0 if excess == 0 else float(np.copysign(np.inf, excess)))
+    elif len(datasets) > 1:
+        note = (note + "; " if note else "") + f"baseline: only {len(valid)} shuffles scorable"
+    return {"set_id": index, "origin": pi_set.origin, "description": pi_set.description,
+            "groups": "; ".join(pi_set.expressions()), "score": score, "baseline_mean": mean, "baseline_std": std,
+            "excess": excess, "z": z, "n_used": used, "n_dropped": dropped, "note": note}
+
+
+def _values(pi_set: PiSet, cols: Mapping[str, np.ndarray], cache: dict, reference: str) -> tuple[np.ndarray, ...]:
+    """Target values and the (n, k-1) matrix of the other groups; group values are cached per dataset."""
+
+    def group(g: PiGroup) -> np.ndarray:
+        key = tuple(g.exponents.items())
+        if key not in cache:
+            cache[key] = g.evaluate(cols)
+        return cache[key]
+
+    target = cols[pi_set.target] if reference == "variable" else group(pi_set.target_group)
+    others = [group(g) for g in pi_set.groups[1:]]
+    return target, (np.column_stack(others) if others else np.empty((len(target), 0)))
+
+
+def _score(scorer: Scorer, target: np.ndarray, groups: np.ndarray) -> tuple[float, int, int, str]:
+    mask = scorer.domain(target, groups)
+    used = int(mask.sum())
+    if used < scorer.min_rows:
+        return np.nan, used, len(target) - used, f"only {used} usable rows (< {scorer.min_rows} for {scorer.name})"
+    return float(scorer.score(target[mask], groups[mask])), used, len(target) - used, ""
