@@ -91,11 +91,15 @@ class SignalReader:
         return acc, -float(self._acc[1]), _xz(self._vel[3:]), -float(self._vel[1])
 
     def _planar_body(self, data: mujoco.MjData, name: str) -> PlanarBody:
+        """The body's planar mass properties, kinematics and applied wrench (``xfrc_applied``, at its COM)."""
         b = self.ids.bodies[name]
         rot = data.ximat[b].reshape(3, 3)
         inertia = float(rot[1] @ (self.model.body_inertia[b] * rot[1]))
         acc, alpha, _, _ = self._body_state(data, b)
-        return PlanarBody(name, float(self.model.body_mass[b]), _xz(data.xipos[b]), inertia, acc, alpha)
+        com = _xz(data.xipos[b])
+        xfrc = data.xfrc_applied[b]
+        return PlanarBody(name, float(self.model.body_mass[b]), com, inertia, acc, alpha,
+                          loads=[(com, _xz(xfrc[:3]))], moment=-float(xfrc[4]))
 
     def _bucket_contacts(self, data: mujoco.MjData) -> list[tuple[np.ndarray, np.ndarray]]:
         loads = []
@@ -110,9 +114,12 @@ class SignalReader:
         return loads
 
     # -- signals ----------------------------------------------------------------------------------------
-    def read(self, data: mujoco.MjData, soil_force: np.ndarray, soil_point: np.ndarray) -> dict[str, float]:
+    def read(self, data: mujoco.MjData, soil_force: np.ndarray) -> dict[str, float]:
+        """All signals at the current (forwarded) state; ``soil_force`` (N, x–z) is reported as ``R_x``/``R_z``.
+
+        Applied loads enter route 2 through ``data.xfrc_applied``, contacts through MuJoCo's contact list."""
         ids, m = self.ids, self.model
-        bucket = combine(self._planar_body(data, "bucket"), *self._payload(data))
+        bucket = combine(self._planar_body(data, "bucket"), self._planar_body(data, "payload"))
         rot = data.xmat[ids.bodies["bucket"]].reshape(3, 3)
         pitch = math.atan2(rot[2, 0], rot[0, 0])
         o = _xz(data.site_xpos[ids.sites["pin_O"]])
@@ -134,12 +141,8 @@ class SignalReader:
         for k in ("lift", "tilt"):
             piston, annulus = self.bore_areas[k]
             out[f"p_{k}"] = pf[k] / piston if pf[k] >= 0 else -pf[k] / annulus
-        out.update(self._route2(data, bucket, soil_force, soil_point, f21, f31, pf))
+        out.update(self._route2(data, bucket, f21, f31, pf))
         return out
-
-    def _payload(self, data: mujoco.MjData) -> tuple[float, np.ndarray, float]:
-        p = self._planar_body(data, "payload")
-        return p.mass, p.com, p.inertia
 
     def _combined_velocity(self, data: mujoco.MjData) -> tuple[np.ndarray, float]:
         total, mom = 0.0, np.zeros(2)
@@ -157,10 +160,9 @@ class SignalReader:
         rows = np.nonzero((data.efc_type == mujoco.mjtConstraint.mjCNSTR_EQUALITY) & (data.efc_id == self.ids.eq_f21))[0]
         return np.array([data.efc_force[rows[0]], data.efc_force[rows[2]]]) if rows.size == 3 else np.zeros(2)
 
-    def _route2(self, data: mujoco.MjData, bucket: PlanarBody, soil_force: np.ndarray, soil_point: np.ndarray,
-                f21: np.ndarray, f31: np.ndarray, pf: dict[str, float]) -> dict[str, float]:
+    def _route2(self, data: mujoco.MjData, bucket: PlanarBody, f21: np.ndarray, f31: np.ndarray,
+                pf: dict[str, float]) -> dict[str, float]:
         bodies = [bucket if n == "bucket" else self._planar_body(data, n) for n in LINKAGE_BODIES]
-        bucket.loads.append((np.asarray(soil_point, float), np.asarray(soil_force, float)))
         bucket.loads.extend(self._bucket_contacts(data))
         points = {n: _xz(data.site_xpos[self.ids.sites[n]]) for n in PIN_SITES}
         pins, slides = linkage_joints(points)

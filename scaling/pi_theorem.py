@@ -74,7 +74,7 @@ def normalise(vec: Sequence[Fraction], target_first: bool) -> Vector:
     scale = lcm(*(Fraction(x).denominator for x in vec))
     ints = [int(Fraction(x) * scale) for x in vec]
     g = gcd(*ints)
-    sign = 1 if next(x for x in ints if x != 0) > 0 else -1
+    sign = 1
     return [Fraction(sign * x, g) for x in ints]
 
 

@@ -1,23 +1,33 @@
 """Scoring and ranking candidate pi-group sets against data, with a shuffled-data baseline.
 
-The paper's filter (``PearsonRMS``): for a set, the score is the root mean square, over the non-target groups, of
-the Pearson correlation between the target group ``pi1`` and that group. Alternatives share one interface,
-:meth:`Scorer.score`, and are selected by name (:data:`SCORERS`) or passed as objects.
+The paper's filter (:class:`PearsonRMS`): for a set, the score is the root mean square, over the non-target groups,
+of the Pearson correlation between the target group ``pi1`` and that group. Alternatives share one interface,
+:meth:`Scorer.score`, and are selected by name (:data:`SCORERS`) or passed as objects. Per-group scorers (Pearson,
+Spearman, ``MutualInformation(joint=False)``) reward sets whose groups each track ``pi1``; joint scorers
+(``MutualInformation()``, :class:`CrossValidatedR2`) measure how well the groups *together* determine ``pi1``.
+Note that all complete sets of one problem span the same groups (Buckingham), so a joint score differs between
+them only through noise and the spread of ``pi1``; it is most useful to compare different variable lists.
 
 Shuffled baseline: every raw *variable* is permuted across rows independently (one permutation per variable, the
 same shuffled datasets for all sets), then all groups are recomputed and scored. This removes every physical
 relation but keeps the algebraic one: ratios that share a variable (``F21/F31`` and ``m_b*a1/F31`` both contain
-``F31``) stay correlated after the shuffle, so that spurious part shows up in the baseline and ``excess = score -
-baseline_mean`` measures only what the data adds. (Shuffling the target group against the other groups would drive
-every baseline to ~0 and hide the shared-variable artefact.)
+``F31``) stay correlated after the shuffle, so that spurious part shows up in ``baseline_mean``. (Shuffling the
+target group against the other groups would drive every baseline to ~0 and hide the shared-variable artefact.)
+Ranking is by ``score`` (the paper) unless asked otherwise; ``excess = score - baseline_mean`` and
+``z = excess / baseline_std`` are the diagnostics: a winner with a small ``z`` is indistinguishable from the
+artefact. (Ranking *by* excess is offered but penalises sets whose groups share variables even when the relation
+is real, because the baseline is the artefact under independence, not a part of the observed score.)
 
 Rows: a row where the target or a group is non-finite (zero to a negative power, negative base to a fractional
 power, ...) or outside a scorer's domain (e.g. ``log`` of 0) is dropped per set and counted in ``n_dropped``. A set
 left with fewer rows than the scorer needs gets a NaN score *and* a ``note`` saying why, and is ranked last.
+Data must be in one coherent unit system (SI, or mm-g-ms, ...); convert mixed units first, e.g. with
+:func:`scaling.units.conversion_factor`.
 """
 
 from __future__ import annotations
 
+import warnings
 from abc import ABC, abstractmethod
 from collections.abc import Mapping, Sequence
 from typing import Literal
@@ -214,7 +224,7 @@ def as_columns(data: DataLike, names: Sequence[str]) -> dict[str, np.ndarray]:
 
 
 def rank_pi_sets(sets: Sequence[PiSet], data: DataLike, scorer: str | Scorer = "pearson", n_shuffles: int = 20, *,
-                 seed: int = 0, rank_by: RankBy = "excess",
+                 seed: int = 0, rank_by: RankBy = "score",
                  reference: Literal["group", "variable"] = "group") -> pd.DataFrame:
     """Score every set on ``data`` and against the shuffled baseline (module docstring); best first.
 
@@ -224,7 +234,7 @@ def rank_pi_sets(sets: Sequence[PiSet], data: DataLike, scorer: str | Scorer = "
         scorer: a :class:`Scorer` or a name in :data:`SCORERS` (``"pearson"`` is the paper's filter).
         n_shuffles: shuffled datasets for the baseline; 0 (no baseline) or >= 2.
         seed: seeds the permutations, so rankings are reproducible.
-        rank_by: ``"score"`` (the paper), ``"excess"`` (score minus baseline mean; default) or ``"z"``. Ties
+        rank_by: ``"score"`` (the paper; default), ``"excess"`` (score minus baseline mean) or ``"z"``. Ties
             (values equal to 10 decimals) keep the input order, so unit changes cannot reorder them.
         reference: ``"group"`` correlates the target group ``pi1`` with the others (default); ``"variable"``
             uses the raw target variable instead, as the paper's text words it.
@@ -258,17 +268,24 @@ def rank_pi_sets(sets: Sequence[PiSet], data: DataLike, scorer: str | Scorer = "
     return table
 
 
-def select_pi_set(sets: Sequence[PiSet], data: DataLike, scorer: str | Scorer = "pearson", n_shuffles: int = 20,
-                  **kwargs: object) -> PiSet:
+def select_pi_set(sets: Sequence[PiSet], data: DataLike, scorer: str | Scorer = "pearson", n_shuffles: int = 20, *,
+                  seed: int = 0, rank_by: RankBy = "score", reference: Literal["group", "variable"] = "group",
+                  min_z: float = 2.0) -> PiSet:
     """The best set of :func:`rank_pi_sets` (same arguments).
+
+    Warns when the winner's ``z`` (score above the shuffled baseline, in baseline standard deviations) is below
+    ``min_z``: its correlation may be the shared-variable artefact.
 
     Raises:
         ValueError: no set could be scored (every one lacks usable rows).
     """
-    table = rank_pi_sets(sets, data, scorer, n_shuffles, **kwargs)  # type: ignore[arg-type]
+    table = rank_pi_sets(sets, data, scorer, n_shuffles, seed=seed, rank_by=rank_by, reference=reference)
     best = table.iloc[0]
-    if np.isnan(best[table.attrs["rank_by"]]):
+    if np.isnan(best[rank_by]):
         raise ValueError(f"no set could be scored: {best['note']}")
+    if n_shuffles and not best["z"] >= min_z:
+        warnings.warn(f"selected set {best['groups']} scores {best['score']:.3g}, only z={best['z']:.3g} baseline "
+                      f"std above the shuffled baseline {best['baseline_mean']:.3g}", stacklevel=2)
     return sets[int(best["set_id"])]
 
 

@@ -44,14 +44,16 @@ def linkage_joints(points: Mapping[str, np.ndarray]) -> tuple[list[Pin], list[Sl
     return pins, slides
 
 
-def combine(a: PlanarBody, mass: float, com: np.ndarray, inertia: float) -> PlanarBody:
-    """Rigidly merge a second mass into a body (parallel-axis theorem); accelerations are kept."""
-    total = a.mass + mass
-    if mass <= 0.0:
+def combine(a: PlanarBody, b: PlanarBody) -> PlanarBody:
+    """Rigidly merge body ``b`` into ``a`` (parallel-axis theorem); the COM acceleration is mass-weighted and the
+    angular acceleration is ``a``'s (they move as one)."""
+    if b.mass <= 0.0:
         return a
-    c = (a.mass * a.com + mass * com) / total
-    i = a.inertia + a.mass * float(np.sum((a.com - c) ** 2)) + inertia + mass * float(np.sum((com - c) ** 2))
-    return PlanarBody(a.name, total, c, i, a.acc, a.alpha, list(a.loads), a.moment)
+    total = a.mass + b.mass
+    c = (a.mass * a.com + b.mass * b.com) / total
+    i = a.inertia + a.mass * float(np.sum((a.com - c) ** 2)) + b.inertia + b.mass * float(np.sum((b.com - c) ** 2))
+    acc = (a.mass * np.asarray(a.acc) + b.mass * np.asarray(b.acc)) / total
+    return PlanarBody(a.name, total, c, i, acc, a.alpha, [*a.loads, *b.loads], a.moment + b.moment)
 
 
 @dataclass(frozen=True)
@@ -127,7 +129,7 @@ def solve_static(spec: LoaderSpec, pose: LinkagePose, payload_mass: float = 0.0,
             fill = min(payload_mass / max(spec.rated_load, 1e-12), 1.0)
             payload_com_local = load_centroid(spec.geometry, fill) - np.asarray(spec.geometry.pin_O)
         com = pose.points["pin_O"] + rot(pose.bucket_pitch) @ np.asarray(payload_com_local, float)
-        bodies["bucket"] = combine(bodies["bucket"], payload_mass, com, 0.0)
+        bodies["bucket"] = combine(bodies["bucket"], PlanarBody("payload", payload_mass, com, 0.0))
     bodies["bucket"].loads.extend((np.asarray(p, float), np.asarray(f, float)) for p, f in bucket_loads)
     pins, slides = linkage_joints(pose.points)
     return StaticSolution(pose, solve_joint_forces(list(bodies.values()), pins, slides), payload_mass)

@@ -20,7 +20,8 @@ class FFNN(DeltaModel):
         lr, epochs, batch_size, weight_decay, patience: training (``batch_size`` ≥ n gives full-batch Adam).
         val_fraction: fraction of training *episodes* held out for early stopping (0: none, train loss decides).
         seed: seeds initialisation, dropout, shuffling and the validation split.
-        threads: torch intra-op threads during fit/predict (``None``: leave torch's setting).
+        threads: torch intra-op threads during fit/predict (default 1: small nets are fastest single-threaded and
+            do not fight other processes for cores; ``None`` leaves torch's setting).
     """
 
     name = "FFNN"
@@ -28,7 +29,7 @@ class FFNN(DeltaModel):
 
     def __init__(self, *, hidden_layers: int = 2, units: int = 32, dropout: float = 0.0, activation: str = "silu",
                  lr: float = 3e-3, epochs: int = 300, batch_size: int = 2048, weight_decay: float = 0.0,
-                 patience: int = 25, val_fraction: float = 0.15, seed: int = 0, threads: int | None = None,
+                 patience: int = 25, val_fraction: float = 0.15, seed: int = 0, threads: int | None = 1,
                  **base: Any) -> None:
         super().__init__(**base)
         if hidden_layers < 0 or units < 1 or not 0 <= dropout < 1:

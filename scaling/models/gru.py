@@ -68,7 +68,7 @@ class GRUModel(DeltaModel):
     def __init__(self, *, hidden_size: int = 32, num_layers: int = 1, dropout: float = 0.0,
                  window: int | None = None, stride: int | None = None, burn_in: int = 10, lr: float = 1e-2,
                  epochs: int = 200, batch_size: int = 64, weight_decay: float = 0.0, patience: int = 25,
-                 val_fraction: float = 0.15, seed: int = 0, threads: int | None = None, **base: Any) -> None:
+                 val_fraction: float = 0.15, seed: int = 0, threads: int | None = 1, **base: Any) -> None:
         super().__init__(**base)
         if window is not None and window < 2:
             raise ValueError(f"window must be >= 2 or None, got {window}")
