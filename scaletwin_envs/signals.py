@@ -18,8 +18,9 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from scaletwin_envs.physics.newton_euler import PlanarBody, solve_joint_forces
-from scaletwin_envs.physics.statics import LINKAGE_PINS, combine, linkage_joints
+from scaletwin_envs.physics.newton_euler import LinkageSystem
+from scaletwin_envs.physics.planar import cross2
+from scaletwin_envs.physics.statics import CYLINDERS, LINKAGE_PINS
 
 LINKAGE_BODIES = ("boom", "bucket", "bell_crank", "link_b", "lift_barrel", "lift_rod", "tilt_barrel", "tilt_rod")
 PIN_SITES = tuple(sorted({p for *_, p in LINKAGE_PINS} | {"bucket_edge", "bucket_heel", "bucket_back_top"}))
@@ -68,38 +69,53 @@ class LoaderIds:
         )
 
 
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise cross product of (n, 3) arrays (np.cross is several times slower on small arrays)."""
+    return np.stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+                     a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]], axis=1)
+
+
 def _xz(v: np.ndarray) -> np.ndarray:
     return np.array([v[0], v[2]])
 
 
 class SignalReader:
-    """Computes the signals of one loader model; call after ``mj_forward`` + ``mj_rnePostConstraint``."""
+    """Computes the signals of one loader model; call after ``mj_forward`` + ``mj_rnePostConstraint``.
+
+    Kinematics of all linkage bodies are read in one vectorised pass from MuJoCo's com-based spatial
+    velocities and accelerations (``cvel``, ``cacc``), which is what ``mj_objectAcceleration`` does per body.
+    """
 
     def __init__(self, model: mujoco.MjModel, bore_areas: dict[str, tuple[float, float]], weight: float) -> None:
         self.model, self.ids = model, LoaderIds.resolve(model)
         self.bore_areas = bore_areas  # cylinder -> (piston area, annulus area), m²
         self.force_scale = weight  # N: residuals are relative to the machine's weight
-        self._acc, self._vel = np.zeros(6), np.zeros(6)
         self._cforce = np.zeros(6)
+        self._names = (*LINKAGE_BODIES, "payload")
+        self._bid = np.array([self.ids.bodies[n] for n in self._names])
+        self._root = int(model.body_rootid[self.ids.bodies["bucket"]])
+        self._sid = np.array([self.ids.sites[n] for n in PIN_SITES])
+        self._pin_sites = np.array([PIN_SITES.index(p) for *_, p in LINKAGE_PINS])
+        self._cyl_sites = np.array([[PIN_SITES.index(a), PIN_SITES.index(b)] for _, a, b in CYLINDERS])
+        self.system = LinkageSystem(LINKAGE_BODIES, [(n, p, c) for n, p, c, _ in LINKAGE_PINS],
+                                    [(n, f"{n}_barrel", f"{n}_rod") for n, *_ in CYLINDERS])
+        self._slide_dof = {k: int(model.jnt_dofadr[self.ids.joints[f"{k}_cylinder"]]) for k in ("lift", "tilt")}
+        self._gravity = -float(model.opt.gravity[2])
 
-    # -- kinematics -------------------------------------------------------------------------------------
-    def _body_state(self, data: mujoco.MjData, body: int) -> tuple[np.ndarray, float, np.ndarray, float]:
-        """Kinematic COM acceleration (x, z), angular acceleration (CCW), COM velocity, angular velocity."""
-        mujoco.mj_objectAcceleration(self.model, data, mujoco.mjtObj.mjOBJ_BODY, body, self._acc, 0)
-        mujoco.mj_objectVelocity(self.model, data, mujoco.mjtObj.mjOBJ_BODY, body, self._vel, 0)
-        acc = _xz(self._acc[3:]) + _xz(self.model.opt.gravity)  # proper → kinematic
-        return acc, -float(self._acc[1]), _xz(self._vel[3:]), -float(self._vel[1])
-
-    def _planar_body(self, data: mujoco.MjData, name: str) -> PlanarBody:
-        """The body's planar mass properties, kinematics and applied wrench (``xfrc_applied``, at its COM)."""
-        b = self.ids.bodies[name]
-        rot = data.ximat[b].reshape(3, 3)
-        inertia = float(rot[1] @ (self.model.body_inertia[b] * rot[1]))
-        acc, alpha, _, _ = self._body_state(data, b)
-        com = _xz(data.xipos[b])
+    def _kinematics(self, data: mujoco.MjData) -> dict[str, np.ndarray]:
+        """Planar COM position, velocity, kinematic acceleration, angular velocity/acceleration (CCW) per body."""
+        b = self._bid
+        r = data.xipos[b] - data.subtree_com[self._root]
+        w, v = data.cvel[b, :3], data.cvel[b, 3:]
+        dw, dv = data.cacc[b, :3], data.cacc[b, 3:]
+        vel = v + _cross(w, r)
+        acc = dv + _cross(dw, r) + _cross(w, vel) + self.model.opt.gravity  # proper → kinematic
+        rot_y = data.ximat[b].reshape(-1, 3, 3)[:, 1, :]
+        inertia = (rot_y**2 * self.model.body_inertia[b]).sum(axis=1)
         xfrc = data.xfrc_applied[b]
-        return PlanarBody(name, float(self.model.body_mass[b]), com, inertia, acc, alpha,
-                          loads=[(com, _xz(xfrc[:3]))], moment=-float(xfrc[4]))
+        return {"com": data.xipos[b][:, [0, 2]], "vel": vel[:, [0, 2]], "acc": acc[:, [0, 2]], "omega": -w[:, 1],
+                "alpha": -dw[:, 1], "mass": self.model.body_mass[b].copy(), "inertia": inertia,
+                "force": xfrc[:, [0, 2]].copy(), "moment": -xfrc[:, 4].copy()}
 
     def _bucket_contacts(self, data: mujoco.MjData) -> list[tuple[np.ndarray, np.ndarray]]:
         loads = []
@@ -114,61 +130,69 @@ class SignalReader:
         return loads
 
     # -- signals ----------------------------------------------------------------------------------------
-    def read(self, data: mujoco.MjData, soil_force: np.ndarray) -> dict[str, float]:
+    def read(self, data: mujoco.MjData, soil_force: np.ndarray, two_routes: bool = True) -> dict[str, float]:
         """All signals at the current (forwarded) state; ``soil_force`` (N, x–z) is reported as ``R_x``/``R_z``.
 
         Applied loads enter route 2 through ``data.xfrc_applied``, contacts through MuJoCo's contact list."""
         ids, m = self.ids, self.model
-        bucket = combine(self._planar_body(data, "bucket"), self._planar_body(data, "payload"))
+        k = self._kinematics(data)
+        kb, kp = self._names.index("bucket"), len(self._names) - 1
+        mb, mp = k["mass"][kb], k["mass"][kp]
+        m_b = mb + mp
+        com = (mb * k["com"][kb] + mp * k["com"][kp]) / m_b
+        acc = (mb * k["acc"][kb] + mp * k["acc"][kp]) / m_b
+        vel = (mb * k["vel"][kb] + mp * k["vel"][kp]) / m_b
         rot = data.xmat[ids.bodies["bucket"]].reshape(3, 3)
         pitch = math.atan2(rot[2, 0], rot[0, 0])
-        o = _xz(data.site_xpos[ids.sites["pin_O"]])
-        c, s = math.cos(-pitch), math.sin(-pitch)
-        r = bucket.com - o
-        vel, omega = self._combined_velocity(data)
+        r = com - _xz(data.site_xpos[ids.sites["pin_O"]])
+        c, s = math.cos(pitch), math.sin(pitch)
         f21 = self._connect_force(data)
         f31 = _xz(data.cfrc_int[ids.bodies["bucket"]][3:])
-        pf = {k: float(data.actuator_force[ids.actuators[k]]) for k in ("lift", "tilt")}
+        pf = {c_: float(data.actuator_force[ids.actuators[c_]]) for c_ in ("lift", "tilt")}
         out = {
             "F21": float(np.hypot(*f21)), "F31": float(np.hypot(*f31)), "Pf_tilt": pf["tilt"], "Pf_lift": pf["lift"],
-            "x_b": c * r[0] - s * r[1], "y_b": s * r[0] + c * r[1], "m_b": bucket.mass,
-            "a1": float(np.hypot(*bucket.acc)), "alpha1": abs(bucket.alpha), "V1": float(np.hypot(*vel)),
-            "w1": abs(omega), "F21_x": f21[0], "F21_z": f21[1], "F31_x": f31[0], "F31_z": f31[1],
+            "x_b": c * r[0] + s * r[1], "y_b": -s * r[0] + c * r[1], "m_b": float(m_b),
+            "a1": float(np.hypot(*acc)), "alpha1": abs(float(k["alpha"][kb])), "V1": float(np.hypot(*vel)),
+            "w1": abs(float(k["omega"][kb])), "F21_x": f21[0], "F21_z": f21[1], "F31_x": f31[0], "F31_z": f31[1],
             "R_x": float(soil_force[0]), "R_z": float(soil_force[1]), "bucket_pitch": pitch,
             "boom_angle": float(data.qpos[m.jnt_qposadr[ids.joints["boom_hinge"]]]),
             "travel_speed": float(data.qvel[m.jnt_dofadr[ids.joints["drive"]]]),
         }
-        for k in ("lift", "tilt"):
-            piston, annulus = self.bore_areas[k]
-            out[f"p_{k}"] = pf[k] / piston if pf[k] >= 0 else -pf[k] / annulus
-        out.update(self._route2(data, bucket, f21, f31, pf))
+        for name in ("lift", "tilt"):
+            piston, annulus = self.bore_areas[name]
+            out[f"p_{name}"] = pf[name] / piston if pf[name] >= 0 else -pf[name] / annulus
+        if two_routes:
+            out.update(self._route2(data, k, f21, f31, pf))
         return out
-
-    def _combined_velocity(self, data: mujoco.MjData) -> tuple[np.ndarray, float]:
-        total, mom = 0.0, np.zeros(2)
-        omega = 0.0
-        for name in ("bucket", "payload"):
-            b = self.ids.bodies[name]
-            _, _, v, w = self._body_state(data, b)
-            mass = float(self.model.body_mass[b])
-            total += mass
-            mom += mass * v
-            omega = w if name == "bucket" else omega
-        return mom / total, omega
 
     def _connect_force(self, data: mujoco.MjData) -> np.ndarray:
         rows = np.nonzero((data.efc_type == mujoco.mjtConstraint.mjCNSTR_EQUALITY) & (data.efc_id == self.ids.eq_f21))[0]
         return np.array([data.efc_force[rows[0]], data.efc_force[rows[2]]]) if rows.size == 3 else np.zeros(2)
 
-    def _route2(self, data: mujoco.MjData, bucket: PlanarBody, f21: np.ndarray, f31: np.ndarray,
+    def _route2(self, data: mujoco.MjData, k: dict[str, np.ndarray], f21: np.ndarray, f31: np.ndarray,
                 pf: dict[str, float]) -> dict[str, float]:
-        bodies = [bucket if n == "bucket" else self._planar_body(data, n) for n in LINKAGE_BODIES]
-        bucket.loads.extend(self._bucket_contacts(data))
-        points = {n: _xz(data.site_xpos[self.ids.sites[n]]) for n in PIN_SITES}
-        pins, slides = linkage_joints(points)
-        sol = solve_joint_forces(bodies, pins, slides, gravity=-float(self.model.opt.gravity[2]))
+        kb, kp = self._names.index("bucket"), len(self._names) - 1
+        n = kp  # linkage bodies only; the payload is merged into the bucket
+        mass, com, inertia = k["mass"][:n].copy(), k["com"][:n].copy(), k["inertia"][:n].copy()
+        acc, force, moment = k["acc"][:n].copy(), k["force"][:n].copy(), k["moment"][:n].copy()
+        # merge the payload rigidly into the bucket (parallel-axis theorem)
+        mb, mp = mass[kb], k["mass"][kp]
+        c = (mb * com[kb] + mp * k["com"][kp]) / (mb + mp)
+        inertia[kb] += mb * np.sum((com[kb] - c) ** 2) + k["inertia"][kp] + mp * np.sum((k["com"][kp] - c) ** 2)
+        acc[kb] = (mb * acc[kb] + mp * k["acc"][kp]) / (mb + mp)
+        moment[kb] += cross2(k["com"][kp] - c, k["force"][kp]) + k["moment"][kp] + cross2(com[kb] - c, force[kb])
+        force[kb] += k["force"][kp]
+        mass[kb], com[kb] = mb + mp, c
+        for point, f in self._bucket_contacts(data):
+            force[kb] += f
+            moment[kb] += cross2(point - c, f)
+        pts = data.site_xpos[self._sid][:, [0, 2]]
+        starts, ends = pts[self._cyl_sites[:, 0]], pts[self._cyl_sites[:, 1]]
+        axes = (ends - starts) / np.linalg.norm(ends - starts, axis=1, keepdims=True)
+        sol = self.system.solve(mass, com, inertia, acc, k["alpha"][:n], force, moment, pts[self._pin_sites],
+                                0.5 * (starts + ends), axes, self._gravity)
         r21, r31 = sol.pins["pin_21"], sol.pins["O"]
-        axial = {k: pf[k] + self._limit_force(data, k) - self._armature_force(data, k) for k in ("lift", "tilt")}
+        axial = {c_: pf[c_] + self._limit_force(data, c_) - self._armature_force(data, c_) for c_ in ("lift", "tilt")}
         w = self.force_scale
         return {
             "F21_route2": float(np.hypot(*r21)), "F31_route2": float(np.hypot(*r31)),
@@ -179,25 +203,22 @@ class SignalReader:
         }
 
     def _armature_force(self, data: mujoco.MjData, cylinder: str) -> float:
-        dof = self.model.jnt_dofadr[self.ids.joints[f"{cylinder}_cylinder"]]
+        dof = self._slide_dof[cylinder]
         return float(self.model.dof_armature[dof] * data.qacc[dof])
 
     def _limit_force(self, data: mujoco.MjData, cylinder: str) -> float:
         j = self.ids.joints[f"{cylinder}_cylinder"]
-        rows = (data.efc_type == mujoco.mjtConstraint.mjCNSTR_LIMIT_JOINT) & (data.efc_id == j)
-        if not rows.any():
+        rows = np.nonzero((data.efc_type == mujoco.mjtConstraint.mjCNSTR_LIMIT_JOINT) & (data.efc_id == j))[0]
+        if rows.size == 0:
             return 0.0
-        # a limit row's force acts along the joint, signed by its Jacobian entry
-        dof = self.model.jnt_dofadr[j]
-        return float(np.sum(data.efc_force[rows] * self._efc_jac_entries(data, rows, dof)))
+        # a joint-limit row's Jacobian is ±1 on the joint's dof: its sign says which end is hit
+        dof = self._slide_dof[cylinder]
+        return float(sum(data.efc_force[r] * self._jac_entry(data, r, dof) for r in rows))
 
-    def _efc_jac_entries(self, data: mujoco.MjData, rows: np.ndarray, dof: int) -> np.ndarray:
+    def _jac_entry(self, data: mujoco.MjData, row: int, dof: int) -> float:
         if mujoco.mj_isSparse(self.model):
-            out = []
-            for r in np.nonzero(rows)[0]:
-                adr, n = data.efc_J_rowadr[r], data.efc_J_rownnz[r]
-                cols = data.efc_J_colind[adr:adr + n]
-                vals = data.efc_J[adr:adr + n]
-                out.append(float(vals[cols == dof][0]) if (cols == dof).any() else 0.0)
-            return np.asarray(out)
-        return data.efc_J.reshape(data.nefc, self.model.nv)[rows, dof]
+            adr, nnz = data.efc_J_rowadr[row], data.efc_J_rownnz[row]
+            cols = data.efc_J_colind[adr:adr + nnz]
+            hit = np.nonzero(cols == dof)[0]
+            return float(data.efc_J[adr + hit[0]]) if hit.size else 0.0
+        return float(data.efc_J.reshape(data.nefc, self.model.nv)[row, dof])

@@ -74,7 +74,7 @@ def normalise(vec: Sequence[Fraction], target_first: bool) -> Vector:
     scale = lcm(*(Fraction(x).denominator for x in vec))
     ints = [int(Fraction(x) * scale) for x in vec]
     g = gcd(*ints)
-    sign = 1
+    sign = 1 if next(x for x in ints if x != 0) > 0 else -1
     return [Fraction(sign * x, g) for x in ints]
 
 
@@ -177,7 +177,13 @@ class PiSet:
 
     @property
     def key(self) -> frozenset[tuple[tuple[str, Fraction], ...]]:
-        return frozenset(tuple(g.exponents.items()) for g in self.groups)
+        """The groups, each normalised as in the module docstring (so any power of a group gives the same key)."""
+        keys = []
+        for g in self.groups:
+            holds = self.target in g.exponents
+            names = canonical_order(g.exponents, self.target if holds else None)
+            keys.append(tuple(sorted(zip(names, normalise([g.exponents[n] for n in names], holds), strict=True))))
+        return frozenset(keys)
 
     def __eq__(self, other: object) -> bool:
         return isinstance(other, PiSet) and (self.target, self.key) == (other.target, other.key)

@@ -326,4 +326,7 @@ def _score(scorer: Scorer, target: np.ndarray, groups: np.ndarray) -> tuple[floa
     used = int(mask.sum())
     if used < scorer.min_rows:
         return np.nan, used, len(target) - used, f"only {used} usable rows (< {scorer.min_rows} for {scorer.name})"
-    return float(scorer.score(target[mask], groups[mask])), used, len(target) - used, ""
+    value = float(scorer.score(target[mask], groups[mask]))
+    if not np.isfinite(value):
+        return np.nan, used, len(target) - used, f"{scorer.name} returned {value} on {used} rows"
+    return value, used, len(target) - used, ""

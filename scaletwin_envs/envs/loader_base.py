@@ -24,8 +24,8 @@ from scaletwin_envs.signals import SignalReader
 from scaletwin_envs.specs.laws import PRODUCT_LINE, ScalingLaw
 from scaletwin_envs.specs.loader import LoaderSpec, make_loader
 
-DEFAULT_FRAME_SKIP = 40
-DEFAULT_EXTERNAL_FORCE_SUBSTEPS = 4
+DEFAULT_FRAME_SKIP = 80  # 12.5 Hz control at the ER12 (80 ms × √λ)
+DEFAULT_EXTERNAL_FORCE_SUBSTEPS = 8  # soil force refreshed every 8 ms × √λ
 
 
 class LoaderEnv(MujocoEnv):
@@ -111,10 +111,7 @@ class LoaderEnv(MujocoEnv):
         return None
 
     def _read_signals(self, soil_force: np.ndarray) -> dict[str, float]:
-        sig = self.signal_reader.read(self.data, soil_force)
-        if not self.two_route_check:
-            sig = {k: v for k, v in sig.items() if not k.endswith("_route2") and not k.startswith("residual_")}
-        return sig
+        return self.signal_reader.read(self.data, soil_force, two_routes=self.two_route_check)
 
     def cylinder_state(self, which: str) -> tuple[float, float]:
         """Extension from fully retracted (m) and speed (m/s) of ``"lift"`` or ``"tilt"``."""

@@ -115,6 +115,7 @@ class WheelLoaderDigEnv(LoaderEnv):
         self.length, self.speed_scale = L, math.sqrt(GRAVITY * L)
         self._sites = {n: self.model.site(n).id for n in ("bucket_edge", "bucket_heel", "bucket_back_top", "pin_O")}
         self._bucket = self.model.body("bucket").id
+        self._site_ids = tuple(self._sites[n] for n in ("bucket_edge", "bucket_back_top", "bucket_heel"))
         self._vel6 = np.zeros(6)
         self.pile: Pile
         self.dig: DigModel
@@ -134,10 +135,11 @@ class WheelLoaderDigEnv(LoaderEnv):
         self.dig = DigModel(self.soil, self.pile, g.bucket_width, self.loader.heaped_capacity, L)
         for v in self.valves.values():
             v.reset()
-        self._soil_force = DigForces(np.zeros(2), np.zeros(2))
+        self._soil_force = DigForces()
         self._work = self._reward_total = 0.0
         self._start_x = self._max_x = float(self.data.qpos[0])
         self._t = 0.0
+        self._payload_volume = -1.0
         self._update_payload()
         mujoco.mj_forward(self.model, self.data)
         mujoco.mj_rnePostConstraint(self.model, self.data)
@@ -154,15 +156,14 @@ class WheelLoaderDigEnv(LoaderEnv):
         return np.array([p[0], p[2]])
 
     def _apply_external_forces(self) -> None:
-        edge = self._site_xz("bucket_edge")
-        mujoco.mj_objectVelocity(self.model, self.data, mujoco.mjtObj.mjOBJ_SITE, self._sites["bucket_edge"],
-                                 self._vel6, 0)
-        f = self.dig.resistance(edge, self._site_xz("bucket_back_top"), self._site_xz("bucket_heel"),
-                                np.array([self._vel6[3], self._vel6[5]]))
+        sx, ids = self.data.site_xpos, self._site_ids
+        edge, top, heel = sx[ids[0]], sx[ids[1]], sx[ids[2]]
+        mujoco.mj_objectVelocity(self.model, self.data, mujoco.mjtObj.mjOBJ_SITE, ids[0], self._vel6, 0)
+        f = self.dig.resistance((edge[0], edge[2]), (top[0], top[2]), (heel[0], heel[2]),
+                                (self._vel6[3], self._vel6[5]))
         com = self.data.xipos[self._bucket]
-        r = (f.point[0] - com[0], f.point[1] - com[2])
-        xfrc = self.data.xfrc_applied[self._bucket]
-        xfrc[:] = (f.force[0], 0.0, f.force[1], 0.0, r[1] * f.force[0] - r[0] * f.force[1], 0.0)  # force, torque
+        torque_y = (edge[2] - com[2]) * f.fx - (edge[0] - com[0]) * f.fz
+        self.data.xfrc_applied[self._bucket] = (f.fx, 0.0, f.fz, 0.0, torque_y, 0.0)  # force, torque
         self._soil_force = f
 
     def _after_physics(self) -> None:
@@ -175,6 +176,9 @@ class WheelLoaderDigEnv(LoaderEnv):
         return math.atan2(rot[2, 0], rot[0, 0])
 
     def _update_payload(self) -> None:
+        if self.dig.load_volume == self._payload_volume:
+            return
+        self._payload_volume = self.dig.load_volume
         g = self.loader.geometry
         fill = self.dig.fill()
         com = load_centroid(g, fill) - np.asarray(g.pin_O)

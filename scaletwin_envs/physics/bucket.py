@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from functools import lru_cache
 
 import numpy as np
 
@@ -39,6 +40,14 @@ def load_centroid(g: LinkageGeometry, fill: float) -> np.ndarray:
     Material settles into the corner between floor and back wall first, so the centroid moves from the
     struck triangle's heel region towards the heaped section's centroid as the bucket fills.
     """
+    corner_c, full_c = _centroid_ends(g)
+    f = min(max(float(fill), 0.0), 1.0)
+    return corner_c + (full_c - corner_c) * f
+
+
+@lru_cache(maxsize=32)
+def _centroid_ends(g: LinkageGeometry) -> tuple[np.ndarray, np.ndarray]:
+    """Load centroid of a nearly empty and of a heaped bucket, m (reference pose)."""
     heel, edge, top = _section(g)
     struck_c = (heel + edge + top) / 3.0
     mid = 0.5 * (edge + top)
@@ -49,9 +58,7 @@ def load_centroid(g: LinkageGeometry, fill: float) -> np.ndarray:
     heap_c = mid + normal * (math.sqrt(heap_area(g) / HEAP_SLOPE) * HEAP_SLOPE / 3.0)
     a_s, a_h = struck_area(g), heap_area(g)
     full_c = (struck_c * a_s + heap_c * a_h) / (a_s + a_h)
-    corner_c = heel + (struck_c - heel) * 0.55
-    f = float(np.clip(fill, 0.0, 1.2))
-    return corner_c + (full_c - corner_c) * min(f, 1.0)
+    return heel + (struck_c - heel) * 0.55, full_c
 
 
 def capacity_fraction(pitch: float, rack_back: float = 0.35) -> float:

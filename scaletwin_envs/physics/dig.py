@@ -26,14 +26,21 @@ CREEP_SPEED = 0.01  # soil resistance reaches tanh(1) of its full value at this 
 
 @dataclass
 class DigForces:
-    """Resistance on the bucket (N, machine frame x–z), its point of application and its components."""
+    """Resistance on the bucket (N, machine frame x–z), applied at the cutting edge, and its parts (N)."""
 
-    force: np.ndarray
-    point: np.ndarray
+    fx: float = 0.0
+    fz: float = 0.0
     cutting: float = 0.0
     bearing: float = 0.0
     side: float = 0.0
-    depth: float = 0.0
+    depth: float = 0.0  # m below the pile surface
+
+    @property
+    def force(self) -> np.ndarray:
+        return np.array([self.fx, self.fz])
+
+
+NO_FORCE = DigForces()
 
 
 class DigModel:
@@ -60,7 +67,7 @@ class DigModel:
         held = capacity_fraction(pitch) * self.capacity
         room = max(held - self.load_volume, 0.0)
         moved = 0.0
-        if room > 0.0:
+        if room > 0.0 and self.pile.reaches(cavity):
             idx, heights = self.pile.overlap(cavity)
             available = float(heights.sum() * self.pile.dx * self.width)
             if available > 0.0:
@@ -74,23 +81,32 @@ class DigModel:
             self.pile.deposit(edge_x, spill, spread=0.3 * self.length_scale)
         return moved
 
-    def resistance(self, edge: np.ndarray, blade_top: np.ndarray, floor_back: np.ndarray,
-                   edge_velocity: np.ndarray) -> DigForces:
-        """Soil force on the bucket at the cutting edge for the current pose and edge velocity (m/s)."""
-        ahead = edge[0] + 0.5 * self.pile.dx
-        depth = self.pile.surface(ahead) - edge[1]
-        side_depth = self.pile.initial_surface(edge[0]) - edge[1]
-        speed = float(np.hypot(*edge_velocity))
+    def resistance(self, edge: tuple[float, float], blade_top: tuple[float, float], floor_back: tuple[float, float],
+                   edge_velocity: tuple[float, float]) -> DigForces:
+        """Soil force on the bucket at the cutting edge for the current pose and edge velocity (m, m/s).
+
+        Runs several times per control step, so it sticks to scalar arithmetic.
+        """
+        ex, ez = edge
+        depth = self.pile.surface(ex + 0.5 * self.pile.dx) - ez
+        side_depth = self.pile.initial_surface(ex) - ez
+        vx, vz = edge_velocity
+        speed = math.hypot(vx, vz)
         if (depth <= 0.0 and side_depth <= 0.0) or speed < 1e-12:
-            return DigForces(np.zeros(2), edge.copy())
-        travel = edge_velocity / speed
-        blade = (blade_top - edge) / max(float(np.hypot(*(blade_top - edge))), 1e-12)
-        rake = math.acos(float(np.clip(np.dot(blade, -travel), -1.0, 1.0)))
-        along, press = blade_force(self.soil, self.width, max(depth, 0.0), rake)
+            return NO_FORCE
+        tx, tz = vx / speed, vz / speed
+        bx, bz = blade_top[0] - ex, blade_top[1] - ez
+        blen = math.hypot(bx, bz) or 1e-12
+        rake = math.acos(max(-1.0, min(1.0, -(bx * tx + bz * tz) / blen)))
+        depth = max(depth, 0.0)
+        along, press = blade_force(self.soil, self.width, depth, rake)
         bearing = self.width * EDGE_THICKNESS * self.length_scale * bearing_pressure(self.soil, depth) if depth > 0 else 0.0
-        buried = min(float(np.hypot(*(edge - floor_back))), max(side_depth, 0.0) / math.tan(self.soil.repose_angle))
-        side = side_drag(self.soil, max(side_depth, 0.0), buried)
+        side_depth = max(side_depth, 0.0)
+        buried = min(math.hypot(ex - floor_back[0], ez - floor_back[1]), side_depth / math.tan(self.soil.repose_angle))
+        side = side_drag(self.soil, side_depth, buried)
         smooth = math.tanh(speed / self.creep)
-        down = np.array([travel[1], -travel[0]])
-        force = smooth * (-(along + bearing + side) * travel + press * down)
-        return DigForces(force, edge.copy(), along * smooth, bearing * smooth, side * smooth, max(depth, 0.0))
+        resist = along + bearing + side
+        # resistance opposes travel; the blade is pressed to the right of travel (downwards when moving forward)
+        fx = smooth * (-resist * tx + press * tz)
+        fz = smooth * (-resist * tz - press * tx)
+        return DigForces(fx, fz, along * smooth, bearing * smooth, side * smooth, depth)

@@ -17,6 +17,7 @@ from scaletwin_envs.specs.soil import SoilSpec
 
 RAKE_MIN, RAKE_MAX = math.radians(15.0), math.radians(90.0)
 _RAKES = np.linspace(RAKE_MIN, RAKE_MAX, 76)
+_RAKE_STEP = float(_RAKES[1] - _RAKES[0])
 _BETAS = np.linspace(math.radians(5.0), math.radians(85.0), 321)
 
 
@@ -31,7 +32,7 @@ def n_factors(rake: float, phi: float, delta: float, beta: np.ndarray | float) -
 
 
 @lru_cache(maxsize=64)
-def _table(soil: SoilSpec) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _table(soil: SoilSpec) -> tuple[list[float], list[float]]:
     """Per rake: the β-minimised coefficients of d² (γ N_γ) and of d (c N_c + c_a N_ca), per unit width."""
     quad = np.empty_like(_RAKES)
     lin = np.empty_like(_RAKES)
@@ -43,16 +44,18 @@ def _table(soil: SoilSpec) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarr
         best = int(np.argmin(np.where(valid, total, np.inf)))
         quad[k] = soil.unit_weight * ng[best]
         lin[k] = max(soil.cohesion * nc[best] + soil.adhesion * nca[best], 0.0)
-    return _RAKES, quad, lin, np.sin(_RAKES + soil.wall_friction_angle)
+    return quad.tolist(), lin.tolist()
 
 
 def blade_force(soil: SoilSpec, width: float, depth: float, rake: float) -> tuple[float, float]:
     """Resistance along travel and force pressing into the soil (N) of a blade at ``depth`` (m)."""
     if depth <= 0.0:
         return 0.0, 0.0
-    rakes, quad, lin, _ = _table(soil)
+    quad, lin = _table(soil)
     r = min(max(rake, RAKE_MIN), RAKE_MAX)
-    p = width * (float(np.interp(r, rakes, quad)) * depth * depth + float(np.interp(r, rakes, lin)) * depth)
+    k = min(int((r - RAKE_MIN) / _RAKE_STEP), len(quad) - 2)
+    t = (r - RAKE_MIN) / _RAKE_STEP - k
+    p = width * (((1 - t) * quad[k] + t * quad[k + 1]) * depth * depth + ((1 - t) * lin[k] + t * lin[k + 1]) * depth)
     return p * math.sin(r + soil.wall_friction_angle), p * math.cos(r + soil.wall_friction_angle)
 
 

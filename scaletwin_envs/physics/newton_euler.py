@@ -65,50 +65,78 @@ class JointForces:
     residual: float  # norm of the equation residual, N (zero for a square, consistent system)
 
 
+class LinkageSystem:
+    """The Newton–Euler system of a fixed topology, assembled with precomputed index arrays (fast per step)."""
+
+    def __init__(self, body_names: Sequence[str], pins: Sequence[tuple[str, str | None, str]],
+                 slides: Sequence[tuple[str, str, str]]) -> None:
+        """``pins``: (name, parent or None, child); ``slides``: (name, barrel, rod)."""
+        index = {n: i for i, n in enumerate(body_names)}
+        self.n_bodies, self.pin_names, self.slide_names = len(body_names), [p[0] for p in pins], [s[0] for s in slides]
+        self.n_unknown = 2 * len(pins) + 3 * len(slides)
+        # each pin acts +F on its child and -F on its parent (if any); each slide +on rod, -on barrel
+        self._pin_body = np.array([index[c] for _, _, c in pins] + [index[p] for _, p, _ in pins if p is not None])
+        self._pin_col = np.array([2 * k for k in range(len(pins))]
+                                 + [2 * k for k, (_, p, _) in enumerate(pins) if p is not None])
+        self._pin_sign = np.array([1.0] * len(pins) + [-1.0] * sum(p is not None for _, p, _ in pins))
+        self._pin_of = np.concatenate([np.arange(len(pins)), [k for k, (_, p, _) in enumerate(pins) if p is not None]])
+        base = 2 * len(pins)
+        self._sl_body = np.array([index[r] for _, _, r in slides] + [index[b] for _, b, _ in slides])
+        self._sl_col = np.tile(base + 3 * np.arange(len(slides)), 2)
+        self._sl_sign = np.repeat([1.0, -1.0], len(slides))
+        self._sl_of = np.tile(np.arange(len(slides)), 2)
+
+    def solve(self, mass: np.ndarray, com: np.ndarray, inertia: np.ndarray, acc: np.ndarray, alpha: np.ndarray,
+              force: np.ndarray, moment: np.ndarray, pin_points: np.ndarray, slide_points: np.ndarray,
+              slide_axes: np.ndarray, gravity: float = GRAVITY) -> JointForces:
+        """Arrays per body (mass (n,), com (n,2), inertia (n,), acc (n,2), alpha (n,), applied force (n,2) acting at
+        the COM and moment (n,)), per pin (points (p,2)), per slide (points, unit axes (s,2))."""
+        n = self.n_bodies
+        a = np.zeros((3 * n, self.n_unknown))
+        rhs = np.empty(3 * n)
+        rhs[0::3] = mass * acc[:, 0] - force[:, 0]
+        rhs[1::3] = mass * acc[:, 1] - (force[:, 1] - mass * gravity)
+        rhs[2::3] = inertia * alpha - moment
+        b, col, sign = self._pin_body, self._pin_col, self._pin_sign
+        r = pin_points[self._pin_of] - com[b]
+        a[3 * b, col] += sign
+        a[3 * b + 1, col + 1] += sign
+        a[3 * b + 2, col] += -sign * r[:, 1]
+        a[3 * b + 2, col + 1] += sign * r[:, 0]
+        b, col, sign = self._sl_body, self._sl_col, self._sl_sign
+        axis = slide_axes[self._sl_of]
+        normal = np.stack([-axis[:, 1], axis[:, 0]], axis=1)
+        r = slide_points[self._sl_of] - com[b]
+        for k, d in enumerate((axis, normal)):
+            a[3 * b, col + k] += sign * d[:, 0]
+            a[3 * b + 1, col + k] += sign * d[:, 1]
+            a[3 * b + 2, col + k] += sign * (r[:, 0] * d[:, 1] - r[:, 1] * d[:, 0])
+        a[3 * b + 2, col + 2] += sign
+        try:
+            x = np.linalg.solve(a, rhs)
+        except np.linalg.LinAlgError:
+            x = np.linalg.lstsq(a, rhs, rcond=None)[0]
+        residual = float(np.linalg.norm(a @ x - rhs))
+        pins = {name: x[2 * k: 2 * k + 2] for k, name in enumerate(self.pin_names)}
+        base = 2 * len(self.pin_names)
+        axial = {name: float(x[base + 3 * k]) for k, name in enumerate(self.slide_names)}
+        return JointForces(pins, axial, residual)
+
+
 def solve_joint_forces(bodies: Sequence[PlanarBody], pins: Sequence[Pin], slides: Sequence[Slide],
                        gravity: float = GRAVITY) -> JointForces:
-    """Solve the linear Newton–Euler system for all joint forces."""
-    index = {b.name: i for i, b in enumerate(bodies)}
-    n_unknown = 2 * len(pins) + 3 * len(slides)
-    a = np.zeros((3 * len(bodies), n_unknown))
-    rhs = np.zeros(3 * len(bodies))
+    """Solve the Newton–Euler system for all joint forces, bodies given as :class:`PlanarBody` objects."""
+    system = LinkageSystem([b.name for b in bodies], [(p.name, p.parent, p.child) for p in pins],
+                           [(s.name, s.barrel, s.rod) for s in slides])
+    force = np.zeros((len(bodies), 2))
+    moment = np.zeros(len(bodies))
     for i, b in enumerate(bodies):
-        applied = np.array([0.0, -b.mass * gravity])
-        moment = b.moment
-        for point, force in b.loads:
-            applied = applied + force
-            moment += cross2(point - b.com, force)
-        rhs[3 * i: 3 * i + 2] = b.mass * np.asarray(b.acc) - applied
-        rhs[3 * i + 2] = b.inertia * b.alpha - moment
-    col = 0
-    for pin in pins:
-        _add_force(a, index, bodies, pin.child, pin.point, col, +1.0)
-        if pin.parent is not None:
-            _add_force(a, index, bodies, pin.parent, pin.point, col, -1.0)
-        col += 2
-    for s in slides:
-        normal = np.array([-s.axis[1], s.axis[0]])
-        for body, sign in ((s.rod, 1.0), (s.barrel, -1.0)):
-            i = index[body]
-            r = s.point - bodies[i].com
-            for k, direction in enumerate((s.axis, normal)):
-                a[3 * i: 3 * i + 2, col + k] += sign * direction
-                a[3 * i + 2, col + k] += sign * cross2(r, direction)
-            a[3 * i + 2, col + 2] += sign
-        col += 3
-    x, *_ = np.linalg.lstsq(a, rhs, rcond=None)
-    residual = float(np.linalg.norm(a @ x - rhs))
-    out_pins = {p.name: x[2 * k: 2 * k + 2].copy() for k, p in enumerate(pins)}
-    base = 2 * len(pins)
-    axial = {s.name: float(x[base + 3 * k]) for k, s in enumerate(slides)}
-    return JointForces(out_pins, axial, residual)
-
-
-def _add_force(a: np.ndarray, index: dict[str, int], bodies: Sequence[PlanarBody], body: str,
-               point: np.ndarray, col: int, sign: float) -> None:
-    i = index[body]
-    r = point - bodies[i].com
-    a[3 * i, col] += sign
-    a[3 * i + 1, col + 1] += sign
-    a[3 * i + 2, col] += sign * -r[1]
-    a[3 * i + 2, col + 1] += sign * r[0]
+        moment[i] = b.moment
+        for point, f in b.loads:
+            force[i] += f
+            moment[i] += cross2(np.asarray(point) - b.com, f)
+    return system.solve(
+        np.array([b.mass for b in bodies]), np.array([b.com for b in bodies]), np.array([b.inertia for b in bodies]),
+        np.array([b.acc for b in bodies], dtype=float), np.array([b.alpha for b in bodies]), force, moment,
+        np.array([p.point for p in pins]), np.array([s.point for s in slides]), np.array([s.axis for s in slides]),
+        gravity)

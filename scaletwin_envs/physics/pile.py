@@ -23,18 +23,33 @@ class Pile:
         self.width = width
         self.h = np.minimum(height, (self.x - toe_x) * math.tan(repose)).clip(min=0.0)
         self.initial = self.h.copy()
+        self._x0, self._last = float(self.x[0]), cells - 1
+        self._top = float(self.h.max())  # the pile never grows higher than this except where spill lands
 
     def surface(self, x: float) -> float:
         """Current height at x (0 outside the pile), m."""
-        return float(np.interp(x, self.x, self.h, left=0.0, right=0.0))
+        return self._interp(self.h, x)
 
     def initial_surface(self, x: float) -> float:
-        return float(np.interp(x, self.x, self.initial, left=0.0, right=0.0))
+        """Undisturbed height at x, m."""
+        return self._interp(self.initial, x)
+
+    def _interp(self, h: np.ndarray, x: float) -> float:
+        u = (x - self._x0) / self.dx
+        if u < 0.0 or u > self._last:
+            return 0.0
+        k = min(int(u), self._last - 1)
+        t = u - k
+        return float(h[k] * (1.0 - t) + h[k + 1] * t)
 
     @property
     def volume(self) -> float:
         """Material left in the strip, m³."""
         return float(self.h.sum() * self.dx * self.width)
+
+    def reaches(self, polygon: np.ndarray) -> bool:
+        """Cheap test: could the polygon (N×2, x–z) hold any pile material?"""
+        return bool(polygon[:, 0].max() >= self._x0 and polygon[:, 1].min() < self._top)
 
     def overlap(self, polygon: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Cell indices and heights (m) of pile material lying inside a convex polygon (N×2, x–z)."""
@@ -67,3 +82,4 @@ class Pile:
         sel = np.abs(self.x - x) <= max(spread / 2, self.dx)
         if sel.any() and volume > 0:
             self.h[sel] += volume / (sel.sum() * self.dx * self.width)
+            self._top = max(self._top, float(self.h[sel].max()))

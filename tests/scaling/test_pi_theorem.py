@@ -2,13 +2,17 @@
 
 from __future__ import annotations
 
+import itertools
 import json
+import math
 import random
 from fractions import Fraction
 
 import pytest
+import sympy
 
 from scaling import PiGroup, PiSet, enumerate_pi_sets, pi_groups, read_manifest, write_manifest
+from scaling.pi_theorem import canonical_order, dimension_matrix, lattice_vectors, null_space_rref
 from scaling.units import conversion_factor, dimension_of, dimension_vector
 
 F = Fraction
@@ -19,6 +23,7 @@ BUBBLE = {"dp": "Pa", "R": "m", "sigma": "N/m"}
 PIPE = {"dp": "Pa", "rho": "kg/m^3", "V": "m/s", "D": "m", "L": "m", "mu": "Pa*s", "k": "m"}
 EQ10 = {"F21": "N", "F31": "N", "Pf_tilt": "N", "Pf_lift": "N", "x_b": "m", "y_b": "m", "m_b": "kg",
         "a1": "m/s^2", "alpha1": "rad/s^2"}
+LENGTHS = {"y": "m", "a": "m", "b": "m", "c": "m"}
 EQ23 = {**{k: v for k, v in EQ10.items() if k not in ("a1", "alpha1")}, "V1": "m/s", "w1": "rad/s"}
 PROBLEMS = {"pendulum": (PENDULUM, "T"), "drag": (DRAG, "F"), "free_fall": (FREE_FALL, "x0"),
             "bubble": (BUBBLE, "dp"), "pipe": (PIPE, "dp"), "eq10": (EQ10, "F21"), "eq23": (EQ23, "F21")}
@@ -143,6 +148,14 @@ def test_every_enumerated_set_is_valid_and_unique(problem: str) -> None:
     assert PiSet(tuple(pi_groups(variables, target)), target, variables) in sets  # canonical basis is a candidate
 
 
+def test_set_identity_is_groups_up_to_powers() -> None:
+    base = PiSet((PiGroup({"y": 1, "a": -1}), PiGroup({"a": 1, "b": -1})), "y", LENGTHS)
+    powered = PiSet((PiGroup({"y": 2, "a": -2}), PiGroup({"a": -3, "b": 3})), "y", LENGTHS, "other", "origin")
+    other = PiSet((PiGroup({"y": 1, "a": -1}), PiGroup({"a": 1, "c": -1})), "y", LENGTHS)
+    assert base == powered and hash(base) == hash(powered) and base != other
+    assert len({base, powered, other}) == 2
+
+
 def test_textbook_sets_are_enumerated() -> None:
     drag = {rays(s) for s in enumerate_pi_sets(DRAG, "F")}
     reynolds = ray({"rho": 1, "V": 1, "b": 1, "mu": -1}, "F")
@@ -165,15 +178,30 @@ def test_eq10_paper_pi1_arises_when_f31_repeats() -> None:
 
 
 def test_lattice_search_respects_bounds_and_budget() -> None:
-    sets = enumerate_pi_sets(EQ10, "F21", max_exponent=1, max_lattice_sets=15)
+    sets = enumerate_pi_sets(EQ10, "F21", max_exponent=1, max_lattice_sets=150)
     lattice = [s for s in sets if s.origin == "lattice"]
-    assert len(lattice) == 15
+    assert len(lattice) == 150
     for s in lattice:
         for g in s.groups:
             scale = 1 if "F21" not in g.exponents else max(e.denominator for e in g.exponents.values())
             assert all(abs(e * scale) <= 1 for e in g.exponents.values())
     with pytest.warns(UserWarning, match="lattice search skipped"):
         enumerate_pi_sets(EQ10, "F21", max_exponent=3, max_lattice_points=1000)
+
+
+@pytest.mark.parametrize(("problem", "bound"), [("drag", 2), ("pipe", 1)])
+def test_lattice_vectors_are_exhaustive(problem: str, bound: int) -> None:
+    variables, target = PROBLEMS[problem]
+    order = canonical_order(variables, target)
+    d = dimension_matrix(variables, order)
+    rows, pivots = null_space_rref(d)
+    found = set(lattice_vectors(rows, pivots, bound))
+    brute = set()
+    for v in itertools.product(range(-bound, bound + 1), repeat=len(order)):
+        first = next((x for x in v if x), 0)
+        if first > 0 and math.gcd(*v) == 1 and all(x == 0 for x in d * sympy.Matrix(v)):
+            brute.add(v)
+    assert found == brute and len(found) > len(rows)
 
 
 def test_manifest_round_trip(tmp_path) -> None:

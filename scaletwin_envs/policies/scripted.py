@@ -1,0 +1,84 @@
+"""The standard dig cycle of the paper (approach in a straight line, lower, penetrate, curl, lift, pull back),
+scripted on the dimensionless observation so the same thresholds work at every size.
+
+Timing needs no scaling by hand: every threshold is in boom lengths, Froude speeds or fractions of stroke.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import IntEnum
+
+import numpy as np
+
+from scaletwin_envs.envs.wheel_loader_dig import OBS_INDEX
+
+
+class Stage(IntEnum):
+    APPROACH = 0
+    PENETRATE = 1
+    CURL = 2
+    LIFT = 3
+    PULL_BACK = 4
+
+
+@dataclass
+class ScriptedDigPolicy:
+    """A state machine over :data:`OBS_NAMES`; ``predict`` mirrors Stable-Baselines3's signature.
+
+    Attributes:
+        penetration: how far past the pile toe to push before curling, boom lengths.
+        approach_drive, penetrate_drive: drive commands.
+        curl_lift, curl_drive: lift and drive while curling (crowding keeps the edge loaded).
+        rack_pitch: bucket pitch (rad) at which the bucket counts as racked back.
+        clearance: edge height above the pile surface before pulling back, boom lengths.
+    """
+
+    penetration: float = 0.45
+    approach_drive: float = 0.8
+    penetrate_drive: float = 1.0
+    curl_lift: float = 0.35
+    curl_drive: float = 0.5
+    rack_pitch: float = 0.55
+    clearance: float = 0.08
+
+    def __post_init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        self.stage = Stage.APPROACH
+        self._stall = 0
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        return self.act(obs)
+
+    def predict(self, obs: np.ndarray, state: object = None, episode_start: object = None,
+                deterministic: bool = True) -> tuple[np.ndarray, None]:
+        return self.act(obs), None
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        o = {k: float(obs[i]) for k, i in OBS_INDEX.items()}
+        self._advance(o)
+        level = float(np.clip(-3.0 * o["bucket_pitch"], -1.0, 1.0))  # keep the bucket floor level
+        if self.stage is Stage.APPROACH:
+            down = -0.3 if o["edge_height"] > 0.01 else 0.0
+            return np.array([down, level, self.approach_drive], dtype=np.float32)
+        if self.stage is Stage.PENETRATE:
+            return np.array([0.0, level, self.penetrate_drive], dtype=np.float32)
+        if self.stage is Stage.CURL:
+            return np.array([self.curl_lift, 1.0, self.curl_drive], dtype=np.float32)
+        if self.stage is Stage.LIFT:
+            return np.array([1.0, 0.0, 0.1], dtype=np.float32)
+        return np.array([0.0, 0.0, -1.0], dtype=np.float32)
+
+    def _advance(self, o: dict[str, float]) -> None:
+        if self.stage is Stage.APPROACH and o["edge_depth"] > 0.0:
+            self.stage = Stage.PENETRATE
+        elif self.stage is Stage.PENETRATE:
+            self._stall = self._stall + 1 if o["travel_speed"] < 0.01 else 0
+            if o["edge_x_to_pile"] > self.penetration or self._stall >= 3 or o["fill"] > 0.7:
+                self.stage = Stage.CURL
+        elif self.stage is Stage.CURL and (o["bucket_pitch"] > self.rack_pitch or o["tilt_extension"] > 0.97):
+            self.stage = Stage.LIFT
+        elif self.stage is Stage.LIFT and o["edge_depth"] < -self.clearance:
+            self.stage = Stage.PULL_BACK
