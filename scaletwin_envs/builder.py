@@ -31,6 +31,11 @@ SERVO_DROOP = 0.01  # a cylinder at relief force slips at this fraction of its r
 # inside a closed loop (with a light rod the loaded linkage jitters). Scales with mass, so similarity is kept;
 # the Newton–Euler route accounts for it as an axial inertial force.
 CYLINDER_ARMATURE = 1.0
+# Pressure override of the relief valve and flow losses, as viscous damping on each cylinder slide: 10 % of the
+# relief force at rated speed (estimate). Physically a relief valve's pressure rises with the flow it passes; it also
+# keeps implicit damping on the slide while the velocity servo is saturated at relief (stall), which MuJoCo
+# otherwise drops, and without which a stalled bucket chatters.
+CYLINDER_DAMPING = 0.1
 PILE_COLUMNS = 48  # visual boxes drawing the pile surface
 
 
@@ -40,11 +45,16 @@ class BuildOptions:
 
     timestep: float
     constraint_timeconst: float
+    constraint_width: float  # m: solimp transition width, scaled with the machine so similarity holds
 
     @classmethod
     def for_spec(cls, spec: LoaderSpec) -> BuildOptions:
         dt = BASE_TIMESTEP * math.sqrt(spec.scale)
-        return cls(timestep=dt, constraint_timeconst=4.0 * dt)
+        return cls(timestep=dt, constraint_timeconst=4.0 * dt, constraint_width=1e-3 * spec.characteristic_length)
+
+    @property
+    def solimp(self) -> list[float]:
+        return [0.9, 0.95, self.constraint_width, 0.5, 2.0]
 
 
 def _v3(p: np.ndarray | tuple[float, float], y: float = 0.0) -> list[float]:
@@ -90,13 +100,26 @@ def build_spec(spec: LoaderSpec, options: BuildOptions | None = None) -> mujoco.
     for name in ("boom_pivot", "lift_frame_pin", "tilt_frame_pin"):
         frame.add_site(name=name, pos=_v3(getattr(g, name)), size=[0.02 * L, 0, 0])
     boom = _add_boom(frame, spec, lay, piv)
-    _add_bucket(boom, spec, lay, piv)
+    _add_bucket(boom, spec, lay, piv, opt)
     _add_bell_crank(boom, spec, lay, piv)
     for which in ("lift", "tilt"):
         _add_cylinder(frame, spec, lay, which)
     _equalities(s, opt)
     _actuators(s, spec)
+    _soil_dampers(s, spec)
     return s
+
+
+def _soil_dampers(s: mujoco.MjSpec, spec: LoaderSpec) -> None:
+    """Two spatial tendons from the cutting edge to anchors far ahead and far above: with a damping coefficient
+    set at run time they resist the edge's velocity isotropically, integrated implicitly by MuJoCo (the soil's
+    Coulomb-like resistance as a velocity-dependent damper, free of the chatter an explicit force would cause)."""
+    far = 1e3 * spec.characteristic_length
+    for name, pos in (("soil_anchor_x", [far, 0.0, 0.0]), ("soil_anchor_z", [0.0, 0.0, far])):
+        s.worldbody.add_site(name=name, pos=pos, size=[0.01, 0, 0])
+        tendon = s.add_tendon(name=name.replace("anchor", "damper"))
+        tendon.wrap_site("bucket_edge")
+        tendon.wrap_site(name)
 
 
 def build_model(spec: LoaderSpec, options: BuildOptions | None = None) -> mujoco.MjModel:
@@ -109,8 +132,8 @@ def _world(s: mujoco.MjSpec, spec: LoaderSpec, opt: BuildOptions) -> None:
     w = s.worldbody
     w.add_light(pos=[L, -2 * L, 4 * L], dir=[0, 0.5, -1])
     w.add_geom(name="ground", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[20 * L, 4 * L, 0.1 * L],
-               rgba=[0.55, 0.52, 0.45, 1], friction=[0.6, 0.005, 0.0001],
-               solref=[opt.constraint_timeconst, 1.0])
+               rgba=[0.55, 0.52, 0.45, 1], condim=1,  # frictionless: the bucket skims the floor; soil drag is modelled
+               solref=[opt.constraint_timeconst, 1.0], solimp=opt.solimp)
     for k in range(PILE_COLUMNS):
         w.add_geom(name=f"pile_{k}", type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.05 * L, 0.4 * L, 1e-3 * L],
                    pos=[0, 0, -L], contype=0, conaffinity=0, rgba=[0.62, 0.5, 0.33, 1])
@@ -143,7 +166,7 @@ def _add_boom(frame: mujoco.MjsBody, spec: LoaderSpec, lay: dict, piv: np.ndarra
     return boom
 
 
-def _add_bucket(boom: mujoco.MjsBody, spec: LoaderSpec, lay: dict, piv: np.ndarray) -> None:
+def _add_bucket(boom: mujoco.MjsBody, spec: LoaderSpec, lay: dict, piv: np.ndarray, opt: BuildOptions) -> None:
     g, L = spec.geometry, spec.characteristic_length
     o = np.asarray(g.pin_O)
     bucket = boom.add_body(name="bucket", pos=_v3(o - piv))
@@ -160,7 +183,7 @@ def _add_bucket(boom: mujoco.MjsBody, spec: LoaderSpec, lay: dict, piv: np.ndarr
         angle = math.atan2(vec[1], vec[0])
         bucket.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, pos=_v3(mid), size=[0.5 * float(np.hypot(*vec)), half_w, t],
                         quat=[math.cos(-angle / 2), 0, math.sin(-angle / 2), 0], rgba=[0.35, 0.35, 0.38, 1],
-                        friction=[0.5, 0.005, 0.0001])
+                        condim=1, solref=[opt.constraint_timeconst, 1.0], solimp=opt.solimp)
     for y in (-half_w, half_w):
         _capsule(bucket, edge, top, 0.5 * t, (0.35, 0.35, 0.38, 1), y)
     for name, p in (("pin_O", np.zeros(2)), ("pin_21", np.asarray(g.pin_21) - o), ("bucket_edge", edge),
@@ -204,7 +227,7 @@ def _add_cylinder(frame: mujoco.MjsBody, spec: LoaderSpec, lay: dict, which: str
     rod = barrel.add_body(name=f"{which}_rod")
     rod.add_joint(type=mujoco.mjtJoint.mjJNT_SLIDE, name=f"{which}_cylinder", axis=_v3(axis),
                   range=[cyl.closed_length - ref_len, cyl.closed_length + cyl.stroke - ref_len],
-                  armature=cylinder_armature(spec))
+                  armature=cylinder_armature(spec), damping=[CYLINDER_DAMPING * cyl.max_extend_force / cyl.extend_speed, 0, 0])
     b = lay[f"{which}_rod"]
     _inertial(rod, b.mass, b.com, b.inertia)
     _capsule(rod, axis * (ref_len - ROD_FRACTION * cyl.closed_length), axis * ref_len, 0.5 * cyl.rod_diameter,
@@ -218,10 +241,11 @@ def cylinder_armature(spec: LoaderSpec) -> float:
 
 
 def _equalities(s: mujoco.MjSpec, opt: BuildOptions) -> None:
-    for name, a, b in (("link_b_to_bucket", "pin_21", "link_b_tip"), ("lift_rod_to_boom", "lift_boom_pin", "lift_rod_tip"),
-                       ("tilt_rod_to_bell_crank", "bell_crank_top", "tilt_rod_tip")):
+    loops = (("link_b_to_bucket", "pin_21", "link_b_tip"), ("lift_rod_to_boom", "lift_boom_pin", "lift_rod_tip"),
+             ("tilt_rod_to_bell_crank", "bell_crank_top", "tilt_rod_tip"))
+    for name, a, b in loops:
         s.add_equality(name=name, type=mujoco.mjtEq.mjEQ_CONNECT, objtype=mujoco.mjtObj.mjOBJ_SITE,
-                       name1=a, name2=b, solref=[opt.constraint_timeconst, 1.0])
+                       name1=a, name2=b, solref=[opt.constraint_timeconst, 1.0], solimp=opt.solimp)
 
 
 def _actuators(s: mujoco.MjSpec, spec: LoaderSpec) -> None:
@@ -231,9 +255,11 @@ def _actuators(s: mujoco.MjSpec, spec: LoaderSpec) -> None:
         act.ctrlrange = [-cyl.retract_speed, cyl.extend_speed]
         act.forcelimited = True
         act.forcerange = [-cyl.max_retract_force, cyl.max_extend_force]
+    # Drive: a torque-converter characteristic, force = traction × (command − v / v_max): full rimpull at stall,
+    # none at top speed. As a pure velocity servo it also keeps MuJoCo's implicit damping on the frame.
     traction = spec.traction_coefficient * spec.weight
     act = s.add_actuator(name="drive", target="drive", trntype=mujoco.mjtTrn.mjTRN_JOINT)
-    act.set_to_velocity(kv=traction / (0.05 * spec.travel_speed))
+    act.set_to_velocity(kv=traction / spec.travel_speed)
     act.ctrlrange = [-spec.travel_speed, spec.travel_speed]
     act.forcelimited = True
     act.forcerange = [-traction, traction]

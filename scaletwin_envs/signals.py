@@ -101,6 +101,29 @@ class SignalReader:
                                     [(n, f"{n}_barrel", f"{n}_rod") for n, *_ in CYLINDERS])
         self._slide_dof = {k: int(model.jnt_dofadr[self.ids.joints[f"{k}_cylinder"]]) for k in ("lift", "tilt")}
         self._gravity = -float(model.opt.gravity[2])
+        self._bucket_tendons = self._tendons_on(self.ids.bodies["bucket"])
+
+    def _tendons_on(self, body: int) -> list[tuple[int, int, int]]:
+        """Two-site spatial tendons starting on ``body``: (tendon, site on body, other site)."""
+        m, out = self.model, []
+        for t in range(m.ntendon):
+            adr, num = m.tendon_adr[t], m.tendon_num[t]
+            if num == 2 and all(m.wrap_type[adr + k] == mujoco.mjtWrap.mjWRAP_SITE for k in range(2)):
+                a, b = int(m.wrap_objid[adr]), int(m.wrap_objid[adr + 1])
+                if m.site_bodyid[a] == body:
+                    out.append((t, a, b))
+        return out
+
+    def _tendon_loads(self, data: mujoco.MjData) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Passive tendon forces (damping) on the bucket, as (point, force) in x–z."""
+        loads = []
+        for t, a, b in self._bucket_tendons:
+            u = data.site_xpos[b] - data.site_xpos[a]
+            u = u / np.linalg.norm(u)
+            f = self.model.tendon_damping[t] * data.ten_velocity[t] - self.model.tendon_stiffness[t] * (
+                data.ten_length[t] - self.model.tendon_lengthspring[t, 0]) * 0.0
+            loads.append((_xz(data.site_xpos[a]), f * _xz(u)))
+        return loads
 
     def _kinematics(self, data: mujoco.MjData) -> dict[str, np.ndarray]:
         """Planar COM position, velocity, kinematic acceleration, angular velocity/acceleration (CCW) per body."""
@@ -166,7 +189,8 @@ class SignalReader:
         return out
 
     def _connect_force(self, data: mujoco.MjData) -> np.ndarray:
-        rows = np.nonzero((data.efc_type == mujoco.mjtConstraint.mjCNSTR_EQUALITY) & (data.efc_id == self.ids.eq_f21))[0]
+        eq = data.efc_type == mujoco.mjtConstraint.mjCNSTR_EQUALITY
+        rows = np.nonzero(eq & (data.efc_id == self.ids.eq_f21))[0]
         return np.array([data.efc_force[rows[0]], data.efc_force[rows[2]]]) if rows.size == 3 else np.zeros(2)
 
     def _route2(self, data: mujoco.MjData, k: dict[str, np.ndarray], f21: np.ndarray, f31: np.ndarray,
@@ -183,7 +207,7 @@ class SignalReader:
         moment[kb] += cross2(k["com"][kp] - c, k["force"][kp]) + k["moment"][kp] + cross2(com[kb] - c, force[kb])
         force[kb] += k["force"][kp]
         mass[kb], com[kb] = mb + mp, c
-        for point, f in self._bucket_contacts(data):
+        for point, f in (*self._bucket_contacts(data), *self._tendon_loads(data)):
             force[kb] += f
             moment[kb] += cross2(point - c, f)
         pts = data.site_xpos[self._sid][:, [0, 2]]
@@ -203,11 +227,14 @@ class SignalReader:
         }
 
     def _armature_force(self, data: mujoco.MjData, cylinder: str) -> float:
+        """Slide forces MuJoCo applies in joint space only: armature inertia and viscous damping (N)."""
         dof = self._slide_dof[cylinder]
-        return float(self.model.dof_armature[dof] * data.qacc[dof])
+        return float(self.model.dof_armature[dof] * data.qacc[dof] + self.model.dof_damping[dof] * data.qvel[dof])
 
     def _limit_force(self, data: mujoco.MjData, cylinder: str) -> float:
         j = self.ids.joints[f"{cylinder}_cylinder"]
+        if data.nl == 0:  # no joint limit active anywhere
+            return 0.0
         rows = np.nonzero((data.efc_type == mujoco.mjtConstraint.mjCNSTR_LIMIT_JOINT) & (data.efc_id == j))[0]
         if rows.size == 0:
             return 0.0

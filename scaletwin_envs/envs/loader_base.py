@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, ClassVar
 
 import mujoco
 import numpy as np
@@ -24,14 +24,14 @@ from scaletwin_envs.signals import SignalReader
 from scaletwin_envs.specs.laws import PRODUCT_LINE, ScalingLaw
 from scaletwin_envs.specs.loader import LoaderSpec, make_loader
 
-DEFAULT_FRAME_SKIP = 80  # 12.5 Hz control at the ER12 (80 ms × √λ)
-DEFAULT_EXTERNAL_FORCE_SUBSTEPS = 8  # soil force refreshed every 8 ms × √λ
+DEFAULT_FRAME_SKIP = 100  # 10 Hz control at the ER12 (100 ms × √λ)
+DEFAULT_EXTERNAL_FORCE_SUBSTEPS = 20  # soil resistance refreshed every 20 ms × √λ (it acts through implicit dampers)
 
 
 class LoaderEnv(MujocoEnv):
     """Base class: a loader of any size with lift, tilt and drive commands in [-1, 1]."""
 
-    metadata = {"render_modes": ["human", "rgb_array", "depth_array"]}
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["human", "rgb_array", "depth_array"]}
 
     def __init__(
         self,
@@ -100,9 +100,12 @@ class LoaderEnv(MujocoEnv):
     def _simulate(self, ctrl: np.ndarray) -> str | None:
         """Advance one control step; returns an error message if the physics blew up."""
         self.data.ctrl[:] = ctrl
+        warnings_before = self._bad_state_warnings()
         for _ in range(self.frame_skip // self.external_force_substeps):
             self._apply_external_forces()
             mujoco.mj_step(self.model, self.data, nstep=self.external_force_substeps)
+        if self._bad_state_warnings() > warnings_before:  # MuJoCo resets a diverged state silently; don't hide it
+            return "MuJoCo reported a non-finite or huge state (physics diverged)"
         if not (np.all(np.isfinite(self.data.qpos)) and np.all(np.isfinite(self.data.qvel))):
             return "non-finite state (physics diverged)"
         self._after_physics()
@@ -112,6 +115,11 @@ class LoaderEnv(MujocoEnv):
 
     def _read_signals(self, soil_force: np.ndarray) -> dict[str, float]:
         return self.signal_reader.read(self.data, soil_force, two_routes=self.two_route_check)
+
+    def _bad_state_warnings(self) -> int:
+        w = self.data.warning
+        return sum(int(w[k].number) for k in (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL,
+                                               mujoco.mjtWarning.mjWARN_BADQACC))
 
     def cylinder_state(self, which: str) -> tuple[float, float]:
         """Extension from fully retracted (m) and speed (m/s) of ``"lift"`` or ``"tilt"``."""

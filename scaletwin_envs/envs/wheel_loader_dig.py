@@ -116,6 +116,8 @@ class WheelLoaderDigEnv(LoaderEnv):
         self._sites = {n: self.model.site(n).id for n in ("bucket_edge", "bucket_heel", "bucket_back_top", "pin_O")}
         self._bucket = self.model.body("bucket").id
         self._site_ids = tuple(self._sites[n] for n in ("bucket_edge", "bucket_back_top", "bucket_heel"))
+        self._dampers = np.array([self.model.tendon(n).id for n in ("soil_damper_x", "soil_damper_z")])
+        self._anchors = (self.model.site("soil_anchor_x").id, self.model.site("soil_anchor_z").id)
         self._vel6 = np.zeros(6)
         self.pile: Pile
         self.dig: DigModel
@@ -136,6 +138,8 @@ class WheelLoaderDigEnv(LoaderEnv):
         for v in self.valves.values():
             v.reset()
         self._soil_force = DigForces()
+        self.model.tendon_damping[self._dampers] = 0.0
+        self.data.xfrc_applied[:] = 0.0
         self._work = self._reward_total = 0.0
         self._start_x = self._max_x = float(self.data.qpos[0])
         self._t = 0.0
@@ -143,7 +147,7 @@ class WheelLoaderDigEnv(LoaderEnv):
         self._update_payload()
         mujoco.mj_forward(self.model, self.data)
         mujoco.mj_rnePostConstraint(self.model, self.data)
-        self.signals = self._read_signals(self._soil_force.force)
+        self.signals = self._read_signals(self.soil_force())
         self._last_obs = self._get_obs()
         return self._last_obs
 
@@ -156,15 +160,30 @@ class WheelLoaderDigEnv(LoaderEnv):
         return np.array([p[0], p[2]])
 
     def _apply_external_forces(self) -> None:
+        """Refresh the soil resistance: the tendon dampers take the part along travel, ``xfrc_applied`` the press."""
         sx, ids = self.data.site_xpos, self._site_ids
         edge, top, heel = sx[ids[0]], sx[ids[1]], sx[ids[2]]
         mujoco.mj_objectVelocity(self.model, self.data, mujoco.mjtObj.mjOBJ_SITE, ids[0], self._vel6, 0)
-        f = self.dig.resistance((edge[0], edge[2]), (top[0], top[2]), (heel[0], heel[2]),
-                                (self._vel6[3], self._vel6[5]))
+        vx, vz = self._vel6[3], self._vel6[5]
+        f = self.dig.resistance((edge[0], edge[2]), (top[0], top[2]), (heel[0], heel[2]), (vx, vz))
+        speed = math.hypot(vx, vz)
+        self.model.tendon_damping[self._dampers] = f.resist / max(speed, self.dig.creep)
+        scale = min(1.0, speed / self.dig.creep)
+        fx, fz = scale * f.press * f.travel[1], -scale * f.press * f.travel[0]
         com = self.data.xipos[self._bucket]
-        torque_y = (edge[2] - com[2]) * f.fx - (edge[0] - com[0]) * f.fz
-        self.data.xfrc_applied[self._bucket] = (f.fx, 0.0, f.fz, 0.0, torque_y, 0.0)  # force, torque
+        torque_y = (edge[2] - com[2]) * fx - (edge[0] - com[0]) * fz
+        self.data.xfrc_applied[self._bucket] = (fx, 0.0, fz, 0.0, torque_y, 0.0)  # force, torque
         self._soil_force = f
+
+    def soil_force(self) -> np.ndarray:
+        """Soil force on the bucket now (N, x–z): tendon dampers plus the press."""
+        edge = self.data.site_xpos[self._site_ids[0]]
+        total = self.data.xfrc_applied[self._bucket][[0, 2]].copy()
+        for t, anchor in zip(self._dampers, self._anchors, strict=True):
+            u = self.data.site_xpos[anchor] - edge
+            u = u / np.linalg.norm(u)
+            total += self.model.tendon_damping[t] * self.data.ten_velocity[t] * u[[0, 2]]
+        return total
 
     def _after_physics(self) -> None:
         cavity = np.array([self._site_xz(n) for n in ("bucket_heel", "bucket_edge", "bucket_back_top")])
@@ -191,7 +210,7 @@ class WheelLoaderDigEnv(LoaderEnv):
         error = self._simulate(self._command_to_ctrl(a))
         self._t += self.dt
         if error is None:
-            sig = self._read_signals(self._soil_force.force)
+            sig = self._read_signals(self.soil_force())
             error = None if self._finite(sig) else "non-finite signals"
         if error is not None:
             info = {"signals": dict(self.signals), "sim_error": error, "phase": "error", "success": False,
@@ -229,7 +248,7 @@ class WheelLoaderDigEnv(LoaderEnv):
         return edge, self.pile.surface(edge[0] + 0.5 * self.pile.dx) - edge[1]
 
     def _cycle_complete(self) -> bool:
-        edge, depth = self._edge_state()
+        _, depth = self._edge_state()
         clear = depth < -0.05 * self.length and self.signals["bucket_pitch"] > 0.2
         pulled_back = self._max_x - float(self.data.qpos[0]) > 0.3 * self.length
         return bool(clear and pulled_back and self.dig.load_volume > 0.0)

@@ -19,7 +19,8 @@ def _section(g: LinkageGeometry) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def struck_area(g: LinkageGeometry) -> float:
     """Cross-section below the strike line (edge to top of the back wall), m²."""
     heel, edge, top = _section(g)
-    return 0.5 * abs(float(np.cross(edge - heel, top - heel)))
+    a, b = edge - heel, top - heel
+    return 0.5 * abs(float(a[0] * b[1] - a[1] * b[0]))
 
 
 def heap_area(g: LinkageGeometry) -> float:

@@ -21,23 +21,25 @@ from scaletwin_envs.specs.soil import SoilSpec
 
 GRAVITY = 9.81
 EDGE_THICKNESS = 0.012  # cutting edge thickness / boom length (a 28 mm edge on the ER12), estimate
-CREEP_SPEED = 0.01  # soil resistance reaches tanh(1) of its full value at this speed / sqrt(g L), estimate
+CREEP_SPEED = 0.05  # soil resistance is full above this edge speed / sqrt(g L) and linear below it, estimate
 
 
 @dataclass
 class DigForces:
-    """Resistance on the bucket (N, machine frame x–z), applied at the cutting edge, and its parts (N)."""
+    """Soil resistance on the bucket at the cutting edge, for travel at or above the creep speed (N).
 
-    fx: float = 0.0
-    fz: float = 0.0
+    ``resist`` opposes the edge's travel, ``press`` pushes the blade into the soil (to the right of travel,
+    i.e. downwards when moving forward). Below the creep speed both fall linearly to zero, so a stalled bucket
+    is held by soil that behaves as a stiff damper rather than a discontinuous Coulomb force.
+    """
+
+    resist: float = 0.0
+    press: float = 0.0
+    travel: tuple[float, float] = (1.0, 0.0)
     cutting: float = 0.0
     bearing: float = 0.0
     side: float = 0.0
     depth: float = 0.0  # m below the pile surface
-
-    @property
-    def force(self) -> np.ndarray:
-        return np.array([self.fx, self.fz])
 
 
 NO_FORCE = DigForces()
@@ -100,13 +102,9 @@ class DigModel:
         rake = math.acos(max(-1.0, min(1.0, -(bx * tx + bz * tz) / blen)))
         depth = max(depth, 0.0)
         along, press = blade_force(self.soil, self.width, depth, rake)
-        bearing = self.width * EDGE_THICKNESS * self.length_scale * bearing_pressure(self.soil, depth) if depth > 0 else 0.0
+        edge_area = self.width * EDGE_THICKNESS * self.length_scale
+        bearing = edge_area * bearing_pressure(self.soil, depth) if depth > 0 else 0.0
         side_depth = max(side_depth, 0.0)
         buried = min(math.hypot(ex - floor_back[0], ez - floor_back[1]), side_depth / math.tan(self.soil.repose_angle))
         side = side_drag(self.soil, side_depth, buried)
-        smooth = math.tanh(speed / self.creep)
-        resist = along + bearing + side
-        # resistance opposes travel; the blade is pressed to the right of travel (downwards when moving forward)
-        fx = smooth * (-resist * tx + press * tz)
-        fz = smooth * (-resist * tz - press * tx)
-        return DigForces(fx, fz, along * smooth, bearing * smooth, side * smooth, depth)
+        return DigForces(along + bearing + side, press, (tx, tz), along, bearing, side, depth)

@@ -64,7 +64,8 @@ def linkage_layout(spec: LoaderSpec) -> dict[str, BodyLayout]:
         rod_len = ROD_FRACTION * cyl.closed_length
         out[f"{which}_barrel"] = BodyLayout(cyl.barrel_mass, axis * BARREL_COM_FRACTION * cyl.closed_length,
                                             cyl.barrel_mass * cyl.closed_length**2 / 12.0)
-        out[f"{which}_rod"] = BodyLayout(cyl.rod_mass, axis * (length - 0.5 * rod_len), cyl.rod_mass * rod_len**2 / 12.0)
+        out[f"{which}_rod"] = BodyLayout(cyl.rod_mass, axis * (length - 0.5 * rod_len),
+                                         cyl.rod_mass * rod_len**2 / 12.0)
     return out
 
 

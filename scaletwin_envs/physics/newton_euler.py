@@ -86,32 +86,36 @@ class LinkageSystem:
         self._sl_sign = np.repeat([1.0, -1.0], len(slides))
         self._sl_of = np.tile(np.arange(len(slides)), 2)
 
+        # position-independent entries (unit force rows of the pins) are assembled once
+        self._template = np.zeros((3 * self.n_bodies, self.n_unknown))
+        rows, cols = 3 * self._pin_body, self._pin_col
+        np.add.at(self._template, (rows, cols), self._pin_sign)
+        np.add.at(self._template, (rows + 1, cols + 1), self._pin_sign)
+        np.add.at(self._template, (3 * self._sl_body + 2, self._sl_col + 2), self._sl_sign)
+
     def solve(self, mass: np.ndarray, com: np.ndarray, inertia: np.ndarray, acc: np.ndarray, alpha: np.ndarray,
               force: np.ndarray, moment: np.ndarray, pin_points: np.ndarray, slide_points: np.ndarray,
               slide_axes: np.ndarray, gravity: float = GRAVITY) -> JointForces:
         """Arrays per body (mass (n,), com (n,2), inertia (n,), acc (n,2), alpha (n,), applied force (n,2) acting at
         the COM and moment (n,)), per pin (points (p,2)), per slide (points, unit axes (s,2))."""
-        n = self.n_bodies
-        a = np.zeros((3 * n, self.n_unknown))
-        rhs = np.empty(3 * n)
+        a = self._template.copy()
+        rhs = np.empty(3 * self.n_bodies)
         rhs[0::3] = mass * acc[:, 0] - force[:, 0]
         rhs[1::3] = mass * acc[:, 1] - (force[:, 1] - mass * gravity)
         rhs[2::3] = inertia * alpha - moment
         b, col, sign = self._pin_body, self._pin_col, self._pin_sign
         r = pin_points[self._pin_of] - com[b]
-        a[3 * b, col] += sign
-        a[3 * b + 1, col + 1] += sign
-        a[3 * b + 2, col] += -sign * r[:, 1]
-        a[3 * b + 2, col + 1] += sign * r[:, 0]
+        # each (row, column) pair below is unique and zero in the template, so plain assignment is exact
+        a[3 * b + 2, col] = -sign * r[:, 1]
+        a[3 * b + 2, col + 1] = sign * r[:, 0]
         b, col, sign = self._sl_body, self._sl_col, self._sl_sign
         axis = slide_axes[self._sl_of]
         normal = np.stack([-axis[:, 1], axis[:, 0]], axis=1)
         r = slide_points[self._sl_of] - com[b]
         for k, d in enumerate((axis, normal)):
-            a[3 * b, col + k] += sign * d[:, 0]
-            a[3 * b + 1, col + k] += sign * d[:, 1]
-            a[3 * b + 2, col + k] += sign * (r[:, 0] * d[:, 1] - r[:, 1] * d[:, 0])
-        a[3 * b + 2, col + 2] += sign
+            a[3 * b, col + k] = sign * d[:, 0]
+            a[3 * b + 1, col + k] = sign * d[:, 1]
+            a[3 * b + 2, col + k] = sign * (r[:, 0] * d[:, 1] - r[:, 1] * d[:, 0])
         try:
             x = np.linalg.solve(a, rhs)
         except np.linalg.LinAlgError:

@@ -54,7 +54,9 @@ class Pile:
     def overlap(self, polygon: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Cell indices and heights (m) of pile material lying inside a convex polygon (N×2, x–z)."""
         lo, hi = polygon[:, 0].min(), polygon[:, 0].max()
-        idx = np.nonzero((self.x >= lo) & (self.x <= hi))[0]
+        first = max(int(np.ceil((lo - self._x0) / self.dx)), 0)
+        last = min(int(np.floor((hi - self._x0) / self.dx)), self._last)
+        idx = np.arange(first, last + 1)
         if idx.size == 0:
             return idx, np.zeros(0)
         xs = self.x[idx]

@@ -1,0 +1,173 @@
+"""Import an external recording (a real machine's log) from CSV or Parquet, converting every column to SI.
+
+Headers are ``name [unit]``, e.g. ``F21 [kN]``, ``Pf_lift [MPa·m²]``, ``x_b [mm]``, ``time [ms]``; ``name`` is a
+column of :mod:`scaletwin_envs.recording.schema` and ``unit`` anything pint converts to that column's SI unit
+(``·``, ``²``, ``³``, ``^`` and ``%`` are accepted; ``[1]``, ``[-]`` or ``[]`` mark pure numbers). ``phase`` and
+``step`` may omit the unit. Joint columns ``q_<joint>``/``qd_<joint>`` take an angle (→ rad, rad/s) or a length
+(→ m, m/s).
+
+Required (:data:`~scaletwin_envs.recording.schema.REQUIRED_IMPORT`): ``time``, the three commands (the twin
+must be able to replay the episode) and the Eq. (10)/(23) signals F21, F31, Pf_tilt, Pf_lift, x_b, y_b, m_b,
+a1, alpha1, V1, w1 (what the scaling models are fitted on). Every other column is optional; columns that are
+absent stay absent (nothing is invented). Unknown columns are an error unless ``ignore_unknown=True``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import re
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import pint
+import pyarrow.parquet as pq
+
+from scaletwin_envs.recording.recording import Provenance, Recording, read_recording
+from scaletwin_envs.recording.schema import METADATA_KEY, NON_QUANTITY, REQUIRED_IMPORT, known_units
+
+_HEADER = re.compile(r"^\s*(?P<name>[^\[\]]+?)\s*(?:\[(?P<unit>[^\[\]]*)\])?\s*$")
+_UNITLESS_OK = frozenset({"phase", "step"})
+_DIMENSIONLESS = frozenset({"", "1", "-", "dimensionless"})
+_REPLACE = (("·", "*"), ("⋅", "*"), ("²", "**2"), ("³", "**3"), ("^", "**"), ("−", "-"), ("%", "percent"))
+
+
+@lru_cache(maxsize=1)
+def unit_registry() -> pint.UnitRegistry:
+    """The pint registry used for conversions (created on first use)."""
+    return pint.UnitRegistry()
+
+
+def to_si(values: np.ndarray, unit: str, si_unit: str) -> np.ndarray:
+    """``values`` in ``unit`` converted to ``si_unit``.
+
+    Raises:
+        ValueError: unknown unit, or a unit of another dimension than ``si_unit``.
+    """
+    ureg = unit_registry()
+    src, dst = _parse(unit), _parse(si_unit)
+    if ureg.Quantity(1.0, src).dimensionality != ureg.Quantity(1.0, dst).dimensionality:
+        raise ValueError(f"{unit!r} cannot be converted to {si_unit!r}")
+    return np.asarray(ureg.Quantity(np.asarray(values, dtype=np.float64), src).to(dst).magnitude, dtype=np.float64)
+
+
+def import_recording(path: str | Path, *, provenance: Provenance | None = None,
+                     ignore_unknown: bool = False) -> Recording:
+    """Read a CSV or Parquet log with ``name [unit]`` headers into an SI :class:`Recording`.
+
+    A scaletwin Parquet recording (with its metadata) is simply read back with :func:`read_recording`.
+
+    Args:
+        path: ``.csv`` or ``.parquet`` file.
+        provenance: what is known about the machine (spec, soil, seed, ...); ``source`` becomes ``"import"``
+            and ``extra`` gains the file name, its SHA-256 and the original headers.
+        ignore_unknown: drop unknown columns instead of failing.
+
+    Raises:
+        FileNotFoundError: no such file.
+        ValueError: missing required columns, unknown columns, or unknown/inconvertible units; the message
+            lists every problem and the expected headers with their SI units.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no recording at {path}")
+    if path.suffix.lower() == ".parquet" and METADATA_KEY in (pq.read_schema(path).metadata or {}):
+        return read_recording(path)
+    raw = _read_table(path)
+    columns, units, problems = _convert(raw, ignore_unknown)
+    missing = [c for c in REQUIRED_IMPORT if c not in columns]
+    if missing:
+        problems.insert(0, f"missing required columns: {', '.join(missing)}")
+    if problems:
+        raise ValueError(f"cannot import {path.name}:\n  " + "\n  ".join(problems) + "\n" + expected_headers())
+    frame, units = _assemble(columns, units, len(raw))
+    extra = {"file": path.name, "sha256": hashlib.sha256(path.read_bytes()).hexdigest(),
+             "headers": [str(c) for c in raw.columns]}
+    base = provenance or Provenance(policy="external")
+    prov = dataclasses.replace(base, source="import", extra={**base.extra, "import": extra})
+    return Recording(frame, units, prov)
+
+
+def expected_headers() -> str:
+    """Human-readable list of accepted headers with their SI units (used in error messages)."""
+    known = known_units()
+    required = ", ".join(f"{c} [{known[c]}]" for c in REQUIRED_IMPORT)
+    optional = ", ".join(f"{c} [{u}]" for c, u in known.items() if c not in REQUIRED_IMPORT)
+    return ("expected headers 'name [unit]' (SI unit shown; any unit convertible to it is accepted):\n"
+            f"  required: {required}\n  optional: {optional}, q_<joint> [rad or m], qd_<joint> [rad/s or m/s]")
+
+
+def _read_table(path: Path) -> pd.DataFrame:
+    suffix = path.suffix.lower()
+    if suffix == ".csv":
+        return pd.read_csv(path)
+    if suffix == ".parquet":
+        return pd.read_parquet(path)
+    raise ValueError(f"cannot import {path.name}: use a .csv or .parquet file")
+
+
+def _convert(raw: pd.DataFrame, ignore_unknown: bool) -> tuple[dict[str, Any], dict[str, str], list[str]]:
+    known = known_units()
+    columns: dict[str, Any] = {}
+    units: dict[str, str] = {}
+    problems: list[str] = []
+    for header in raw.columns:
+        m = _HEADER.match(str(header))
+        name, unit = (m["name"], m["unit"]) if m else (str(header), None)
+        is_joint = name.startswith(("q_", "qd_"))
+        if name not in known and not is_joint:
+            if not ignore_unknown:
+                problems.append(f"unknown column {header!r}")
+            continue
+        if name in columns:
+            problems.append(f"column {name!r} appears twice")
+            continue
+        if unit is None:
+            if name not in _UNITLESS_OK:
+                problems.append(f"column {header!r} has no unit: write it as '{name} [{known.get(name, 'unit')}]'")
+                continue
+            unit = known[name]
+        si = _joint_unit(name, unit) if is_joint else known[name]
+        try:
+            columns[name] = raw[header].to_numpy() if si == NON_QUANTITY else to_si(raw[header].to_numpy(), unit, si)
+            units[name] = si
+        except (ValueError, pint.PintError) as exc:
+            problems.append(f"column {header!r}: unit {unit!r} is not convertible to {si!r} ({exc})")
+    return columns, units, problems
+
+
+def _joint_unit(name: str, unit: str) -> str:
+    rate = name.startswith("qd_")
+    try:
+        q = unit_registry().Quantity(1.0, _parse(unit))
+    except (ValueError, pint.PintError):
+        return "rad/s" if rate else "rad"  # the conversion reports the bad unit
+    is_length = "[length]" in q.dimensionality
+    return ("m/s" if rate else "m") if is_length else ("rad/s" if rate else "rad")
+
+
+def _assemble(columns: dict[str, Any], units: dict[str, str], rows: int) -> tuple[pd.DataFrame, dict[str, str]]:
+    order = [c for c in known_units() if c in columns]
+    order += sorted(c for c in columns if c not in order)
+    cols = {c: columns[c] for c in order}
+    if "step" in cols:
+        cols["step"] = np.asarray(cols["step"], dtype=np.int64)
+    else:
+        cols = {"step": np.arange(1, rows + 1, dtype=np.int64), **cols}
+        units = {"step": "1", **units}
+    if "phase" in cols:
+        cols["phase"] = pd.array([str(p) for p in cols["phase"]], dtype="str")
+    return pd.DataFrame(cols), {c: units[c] for c in cols}
+
+
+def _parse(unit: str) -> str:
+    text = unit.strip()
+    if text.lower() in _DIMENSIONLESS:
+        return "dimensionless"
+    for old, new in _REPLACE:
+        text = text.replace(old, new)
+    unit_registry().parse_units(text)  # raises UndefinedUnitError for unknown units
+    return text
