@@ -17,7 +17,6 @@ from pathlib import Path
 
 import gymnasium as gym
 import mujoco
-import numpy as np
 
 import scaletwin_envs
 from scaletwin_envs.policies import ScriptedDigPolicy

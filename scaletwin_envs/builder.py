@@ -227,7 +227,8 @@ def _add_cylinder(frame: mujoco.MjsBody, spec: LoaderSpec, lay: dict, which: str
     rod = barrel.add_body(name=f"{which}_rod")
     rod.add_joint(type=mujoco.mjtJoint.mjJNT_SLIDE, name=f"{which}_cylinder", axis=_v3(axis),
                   range=[cyl.closed_length - ref_len, cyl.closed_length + cyl.stroke - ref_len],
-                  armature=cylinder_armature(spec), damping=[CYLINDER_DAMPING * cyl.max_extend_force / cyl.extend_speed, 0, 0])
+                  armature=cylinder_armature(spec),
+                  damping=[CYLINDER_DAMPING * cyl.max_extend_force / cyl.extend_speed, 0, 0])
     b = lay[f"{which}_rod"]
     _inertial(rod, b.mass, b.com, b.inertia)
     _capsule(rod, axis * (ref_len - ROD_FRACTION * cyl.closed_length), axis * ref_len, 0.5 * cyl.rod_diameter,

@@ -1,14 +1,15 @@
-"""The ``scaletwin`` command line. Each subcommand lives in its own module with ``register(subparsers)``."""
+"""The ``scaletwin`` command line. Each subcommand lives in its own module of this package, which defines
+``register(subparsers)``; modules are discovered, so adding a command means adding a module."""
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import pkgutil
 import sys
 from collections.abc import Sequence
 
-#: Subcommand modules, in the order ``scaletwin --help`` lists them.
-COMMANDS = ("demo", "simulate")
+HELPER_MODULES = {"common"}  # modules of this package that are not commands
 
 
 class CommandError(Exception):
@@ -16,11 +17,12 @@ class CommandError(Exception):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="scaletwin", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="scaletwin", description="Scale calibrated digital twins across sizes.")
     parser.add_argument("--version", action="version", version="scaletwin 0.1.0")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for name in COMMANDS:
-        importlib.import_module(f"scaletwin.cli.{name.replace('-', '_')}").register(sub)
+    for info in sorted(pkgutil.iter_modules(__path__), key=lambda i: i.name):
+        if info.name not in HELPER_MODULES and not info.name.startswith("_"):
+            importlib.import_module(f"{__name__}.{info.name}").register(sub)
     return parser
 
 

@@ -55,6 +55,11 @@ class Provenance:
     source: str = "simulation"
     extra: dict[str, Any] = field(default_factory=dict)
 
+    def __post_init__(self) -> None:
+        # canonical JSON form (tuples -> lists, ...), so that a provenance equals itself read back from a file
+        for name in ("machine", "soil", "env_kwargs", "extra"):
+            object.__setattr__(self, name, _json_form(getattr(self, name)))
+
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
@@ -137,6 +142,11 @@ class Recording:
         """Same table (NaN equal to NaN), units, provenance and schema version."""
         return (self.schema_version == other.schema_version and self.units == other.units
                 and self.provenance == other.provenance and self.data.equals(other.data))
+
+
+def _json_form(value: Any) -> Any:
+    """``value`` as it reads back from JSON (raises TypeError for values JSON cannot hold)."""
+    return None if value is None else json.loads(json.dumps(value))
 
 
 def recording_from_arrow(table: pa.Table, where: str = "table") -> Recording:

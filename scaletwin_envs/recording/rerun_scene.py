@@ -51,10 +51,12 @@ class SceneLogger:
         """Static: view coordinates (z up) and every body's geoms in its own frame."""
         rec.log(WORLD_PATH, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         for body, path in zip(self.body_ids, self.paths, strict=True):
-            for kind, archetype in self._body_geometry(int(body)).items():
-                rec.log(f"{path}/geometry/{kind}", archetype, static=True)
+            for kind, parts in self.body_geometry(int(body)).items():
+                rec.log(f"{path}/geometry/{kind}", _archetype(kind, parts), static=True)
 
-    def _body_geometry(self, body: int) -> dict[str, Any]:
+    def body_geometry(self, body: int) -> dict[str, list[dict[str, Any]]]:
+        """The body's geoms by kind, in the body frame: ``pos`` (m; a capsule's start, else its centre),
+        ``quat`` (MuJoCo w, x, y, z), ``rgba``, and ``r``/``len`` (m) or ``half`` (half sizes, m)."""
         m = self.model
         parts: dict[str, list[dict[str, Any]]] = {"capsules": [], "cylinders": [], "boxes": [], "spheres": []}
         for g in np.nonzero(m.geom_bodyid == body)[0]:
@@ -69,7 +71,7 @@ class SceneLogger:
                 parts["boxes"].append({**item, "half": size.copy(), "pos": pos})
             elif kind == mujoco.mjtGeom.mjGEOM_SPHERE:
                 parts["spheres"].append({**item, "half": np.full(3, size[0]), "pos": pos})
-        return {k: _archetype(k, v) for k, v in parts.items() if v}
+        return {k: v for k, v in parts.items() if v}
 
     # -- per step -----------------------------------------------------------------------------------------
     def poses(self, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:

@@ -9,6 +9,7 @@ the versions and every episode's parameters and status.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import importlib
 import itertools
@@ -20,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
+import pandas as pd
 from tqdm.auto import tqdm
 
 import scaletwin_envs
@@ -27,6 +29,7 @@ from scaletwin_envs.parallel import Executor, make_executor
 from scaletwin_envs.policies import ScriptedDigPolicy
 from scaletwin_envs.recording.atomic import write_text_atomic
 from scaletwin_envs.recording.recorder import record_episode
+from scaletwin_envs.recording.recording import read_recording
 from scaletwin_envs.recording.schema import SCHEMA_VERSION
 
 MANIFEST = "manifest.json"
@@ -140,7 +143,8 @@ def run_task(job: tuple[EpisodeTask, str]) -> dict[str, Any]:
             rec = record_episode(env, make_policy(task.policy, **task.policy_kwargs), task.seed)
         finally:
             env.close()
-        rec.provenance.extra["sweep_task"] = {**task.params(), "key": task.key()}
+        extra = {**rec.provenance.extra, "sweep_task": {**task.params(), "key": task.key()}}
+        rec.provenance = dataclasses.replace(rec.provenance, extra=extra)
         rec.to_parquet(path)
     except Exception as exc:  # reported in the manifest; the file is absent, so a rerun retries it
         return {**summary, "status": "failed", "error": f"{type(exc).__name__}: {exc}"}
@@ -212,3 +216,31 @@ def _read_manifest(out: Path) -> dict[str, Any]:
 
 def _write_manifest(out: Path, manifest: dict[str, Any]) -> None:
     write_text_atomic(out / MANIFEST, json.dumps(manifest, indent=1, sort_keys=True, default=str))
+
+
+def load_dataset(out_dir: str | Path) -> pd.DataFrame:
+    """All episodes of a dataset folder in one table (files in name order, rows in step order).
+
+    Adds ``episode`` (the task hash, or the file stem), ``machine`` (spec name), ``soil``, ``seed``,
+    ``pile_distance`` and ``pile_height`` in front of the recording columns. ``attrs["units"]`` holds the unit
+    of every column.
+
+    Raises:
+        FileNotFoundError: the folder holds no ``ep-*.parquet`` file.
+    """
+    files = sorted(Path(out_dir).glob("ep-*.parquet"))
+    if not files:
+        raise FileNotFoundError(f"no episodes (ep-*.parquet) in {out_dir}")
+    frames, units = [], {}
+    for f in files:
+        rec = read_recording(f)
+        p = rec.provenance
+        meta = {"episode": p.extra.get("sweep_task", {}).get("key", f.stem), "machine": (p.machine or {}).get("name"),
+                "soil": (p.soil or {}).get("name"), "seed": p.seed, "pile_distance": p.env_kwargs.get("pile_distance"),
+                "pile_height": p.env_kwargs.get("pile_height")}
+        frames.append(rec.data.assign(**meta)[[*meta, *rec.data.columns]])
+        units.update(rec.units)
+    out = pd.concat(frames, ignore_index=True)
+    out.attrs["units"] = {"episode": "-", "machine": "-", "soil": "-", "seed": "1", "pile_distance": "1",
+                          "pile_height": "1", **units}
+    return out

@@ -87,7 +87,7 @@ def test_blow_up_truncates_with_sim_error_and_no_nan() -> None:
     obs, _ = env.reset(seed=0)
     env.unwrapped.model.opt.gravity[2] = np.nan  # a user's broken model: accelerations cannot be computed
     for _ in range(20):
-        obs, reward, terminated, truncated, info = env.step(np.array([1.0, 1.0, 1.0], dtype=np.float32))
+        obs, reward, _, truncated, info = env.step(np.array([1.0, 1.0, 1.0], dtype=np.float32))
         assert np.all(np.isfinite(obs)) and np.isfinite(reward)
         if truncated:
             break

@@ -36,7 +36,7 @@ def test_breakout_force_per_weight_is_plausible(name: str) -> None:
 def test_every_preset_value_names_a_source(name: str) -> None:
     provenance = make_loader(name).provenance
     for key in ("operating_mass", "relief_pressure", "geometry", "rated_load"):
-        assert key in provenance and provenance[key]
+        assert provenance.get(key)
 
 
 def test_froude_law_is_geometric_similarity() -> None:
