@@ -117,7 +117,7 @@ def _soil_dampers(s: mujoco.MjSpec, spec: LoaderSpec) -> None:
     far = 1e3 * spec.characteristic_length
     for name, pos in (("soil_anchor_x", [far, 0.0, 0.0]), ("soil_anchor_z", [0.0, 0.0, far])):
         s.worldbody.add_site(name=name, pos=pos, size=[0.01, 0, 0])
-        tendon = s.add_tendon(name=name.replace("anchor", "damper"))
+        tendon = s.add_tendon(name=name.replace("anchor", "damper"), group=3)  # group 3: not drawn by default
         tendon.wrap_site("bucket_edge")
         tendon.wrap_site(name)
 
@@ -131,13 +131,14 @@ def _world(s: mujoco.MjSpec, spec: LoaderSpec, opt: BuildOptions) -> None:
     L = spec.characteristic_length
     w = s.worldbody
     w.add_light(pos=[L, -2 * L, 4 * L], dir=[0, 0.5, -1])
+    s.visual.headlight.ambient = [0.35, 0.35, 0.35]
     w.add_geom(name="ground", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[20 * L, 4 * L, 0.1 * L],
                rgba=[0.55, 0.52, 0.45, 1], condim=1,  # frictionless: the bucket skims the floor; soil drag is modelled
                solref=[opt.constraint_timeconst, 1.0], solimp=opt.solimp)
     for k in range(PILE_COLUMNS):
         w.add_geom(name=f"pile_{k}", type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.05 * L, 0.4 * L, 1e-3 * L],
                    pos=[0, 0, -L], contype=0, conaffinity=0, rgba=[0.62, 0.5, 0.33, 1])
-    w.add_camera(name="side", pos=[1.2 * L, -3.6 * L, 0.9 * L], xyaxes=[1, 0, 0, 0, 0, 1],
+    w.add_camera(name="side", pos=[1.5 * L, -4.6 * L, 1.0 * L], xyaxes=[1, 0, 0, 0, 0, 1],
                  mode=mujoco.mjtCamLight.mjCAMLIGHT_TRACKCOM)
 
 

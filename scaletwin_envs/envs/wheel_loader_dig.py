@@ -309,3 +309,7 @@ class WheelLoaderDigEnv(LoaderEnv):
             self.model.geom_size[gid][0] = 0.5 * (edges[k + 1] - edges[k])
             self.model.geom_size[gid][2] = 0.5 * height
             self.model.geom_pos[gid] = (0.5 * (edges[k] + edges[k + 1]), 0.0, 0.5 * height)
+            self.data.geom_xpos[gid] = self.model.geom_pos[gid]  # world geoms: kinematics would copy it next step
+            # the renderer culls by these bounds, which the compiler sized for the initial tiny boxes
+            self.model.geom_rbound[gid] = float(np.linalg.norm(self.model.geom_size[gid]))
+            self.model.geom_aabb[gid, 3:] = self.model.geom_size[gid]

@@ -31,6 +31,8 @@ from scaletwin_envs.signals import SIGNAL_UNITS
 
 APP_ID = "scaletwin"
 SIGNALS_PATH, GROUPS_PATH, PHASE_PATH, PHASE_LOG_PATH = "/signals", "/signals/groups", "/phase", "/phases"
+#: The pile is logged again when its surface moved by more than this fraction of its height.
+PILE_TOLERANCE = 0.01
 #: Time-series tabs of the default layout: title → signals.
 SIGNAL_PANELS: dict[str, tuple[str, ...]] = {
     "Pin forces": ("F21", "F31", "F21_route2", "F31_route2"),
@@ -170,10 +172,14 @@ class RerunLogger:
         self._load.append((centre, radius, mass))
         self._log_pile(step, self._times[-1])
 
-    def _log_pile(self, step: int, time: float) -> None:
+    def _log_pile(self, step: int, time: float, force: bool = False) -> None:
         pile = getattr(self.unwrapped, "pile", None)
-        if pile is None or (self._pile_h is not None and np.array_equal(pile.h, self._pile_h)):
+        if pile is None:
             return
+        if not force and self._pile_h is not None:
+            tolerance = PILE_TOLERANCE * float(np.max(pile.initial, initial=0.0))
+            if float(np.max(np.abs(pile.h - self._pile_h), initial=0.0)) <= tolerance:
+                return
         self._pile_h = np.array(pile.h, copy=True)
         self.rec.set_time("step", sequence=step)
         self.rec.set_time("sim_time", duration=time)
@@ -196,7 +202,9 @@ class RerunLogger:
         self._clear()
 
     def close(self) -> None:
-        """Send what is buffered and flush the stream."""
+        """Send what is buffered (and the final pile) and flush the stream."""
+        if self.do_scene and self._steps:
+            self._log_pile(self._steps[-1], self._times[-1], force=True)
         self.flush()
         self.rec.flush()
 
