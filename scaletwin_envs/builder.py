@@ -20,7 +20,7 @@ import mujoco
 import numpy as np
 
 from scaletwin_envs.physics.kinematics import LinkagePose
-from scaletwin_envs.physics.mass_layout import ROD_FRACTION, chassis_com, cylinder_axis, linkage_layout
+from scaletwin_envs.physics.mass_layout import ROD_FRACTION, BodyLayout, chassis_com, cylinder_axis, linkage_layout
 from scaletwin_envs.specs.loader import GRAVITY, LoaderSpec
 
 HINGE_AXIS = (0.0, -1.0, 0.0)  # positive angles turn x towards z: boom up, bucket curled back
@@ -74,8 +74,13 @@ def _capsule(body: mujoco.MjsBody, a: np.ndarray, b: np.ndarray, radius: float, 
                   contype=0, conaffinity=0, rgba=list(rgba))
 
 
-def _hinge(body: mujoco.MjsBody, name: str) -> None:
-    body.add_joint(type=mujoco.mjtJoint.mjJNT_HINGE, name=name, axis=list(HINGE_AXIS))
+def _hinged_body(parent: mujoco.MjsBody, name: str, joint: str, pos: np.ndarray, layout: BodyLayout
+                 ) -> mujoco.MjsBody:
+    """A child body at ``pos`` (m, in the parent's frame) turning about the y axis, with its layout's inertia."""
+    body = parent.add_body(name=name, pos=_v3(pos))
+    body.add_joint(type=mujoco.mjtJoint.mjJNT_HINGE, name=joint, axis=list(HINGE_AXIS))
+    _inertial(body, layout.mass, layout.com, layout.inertia)
+    return body
 
 
 def build_spec(spec: LoaderSpec, options: BuildOptions | None = None) -> mujoco.MjSpec:
@@ -154,10 +159,7 @@ def _chassis_visual(frame: mujoco.MjsBody, spec: LoaderSpec) -> None:
 
 def _add_boom(frame: mujoco.MjsBody, spec: LoaderSpec, lay: dict, piv: np.ndarray) -> mujoco.MjsBody:
     g, L = spec.geometry, spec.characteristic_length
-    boom = frame.add_body(name="boom", pos=_v3(piv))
-    _hinge(boom, "boom_hinge")
-    b = lay["boom"]
-    _inertial(boom, b.mass, b.com, b.inertia)
+    boom = _hinged_body(frame, "boom", "boom_hinge", piv, lay["boom"])
     o, c, lb = (np.asarray(v) - piv for v in (g.pin_O, g.bell_crank_pivot, g.lift_boom_pin))
     _capsule(boom, np.zeros(2), o, 0.035 * L, (0.9, 0.7, 0.1, 1))
     _capsule(boom, c, 0.5 * o, 0.025 * L, (0.9, 0.7, 0.1, 1))
@@ -170,10 +172,8 @@ def _add_boom(frame: mujoco.MjsBody, spec: LoaderSpec, lay: dict, piv: np.ndarra
 def _add_bucket(boom: mujoco.MjsBody, spec: LoaderSpec, lay: dict, piv: np.ndarray, opt: BuildOptions) -> None:
     g, L = spec.geometry, spec.characteristic_length
     o = np.asarray(g.pin_O)
-    bucket = boom.add_body(name="bucket", pos=_v3(o - piv))
-    _hinge(bucket, "bucket_hinge")
     b = lay["bucket"]
-    _inertial(bucket, b.mass, b.com, b.inertia)
+    bucket = _hinged_body(boom, "bucket", "bucket_hinge", o - piv, b)
     heel, edge, top = (np.asarray(v) - o for v in (g.bucket_heel, g.bucket_edge, g.bucket_back_top))
     half_w, t = 0.5 * g.bucket_width, 0.02 * L
     inward = (edge - heel) + (top - heel)  # plates lie inside the outline so the outline is the contact surface
@@ -197,18 +197,12 @@ def _add_bucket(boom: mujoco.MjsBody, spec: LoaderSpec, lay: dict, piv: np.ndarr
 def _add_bell_crank(boom: mujoco.MjsBody, spec: LoaderSpec, lay: dict, piv: np.ndarray) -> None:
     g, L = spec.geometry, spec.characteristic_length
     c = np.asarray(g.bell_crank_pivot)
-    crank = boom.add_body(name="bell_crank", pos=_v3(c - piv))
-    _hinge(crank, "bell_crank_hinge")
-    b = lay["bell_crank"]
-    _inertial(crank, b.mass, b.com, b.inertia)
+    crank = _hinged_body(boom, "bell_crank", "bell_crank_hinge", c - piv, lay["bell_crank"])
     top, bottom = np.asarray(g.bell_crank_top) - c, np.asarray(g.bell_crank_bottom) - c
     _capsule(crank, top, bottom, 0.02 * L, (0.2, 0.2, 0.2, 1), 0.05 * L)
     crank.add_site(name="bell_crank_top", pos=_v3(top), size=[0.02 * L, 0, 0])
     crank.add_site(name="bell_crank_bottom", pos=_v3(bottom), size=[0.02 * L, 0, 0])
-    link = crank.add_body(name="link_b", pos=_v3(bottom))
-    _hinge(link, "link_b_hinge")
-    b = lay["link_b"]
-    _inertial(link, b.mass, b.com, b.inertia)
+    link = _hinged_body(crank, "link_b", "link_b_hinge", bottom, lay["link_b"])
     tip = np.asarray(g.pin_21) - np.asarray(g.bell_crank_bottom)
     _capsule(link, np.zeros(2), tip, 0.015 * L, (0.2, 0.2, 0.2, 1), 0.05 * L)
     link.add_site(name="link_b_tip", pos=_v3(tip), size=[0.015 * L, 0, 0])
@@ -220,10 +214,7 @@ def _add_cylinder(frame: mujoco.MjsBody, spec: LoaderSpec, lay: dict, which: str
     start = np.asarray(g.lift_frame_pin if which == "lift" else g.tilt_frame_pin)
     axis, ref_len = cylinder_axis(spec, which)
     y = -0.12 * L if which == "lift" else 0.12 * L
-    barrel = frame.add_body(name=f"{which}_barrel", pos=_v3(start))
-    _hinge(barrel, f"{which}_barrel_hinge")
-    b = lay[f"{which}_barrel"]
-    _inertial(barrel, b.mass, b.com, b.inertia)
+    barrel = _hinged_body(frame, f"{which}_barrel", f"{which}_barrel_hinge", start, lay[f"{which}_barrel"])
     _capsule(barrel, np.zeros(2), axis * 0.95 * cyl.closed_length, 0.5 * cyl.bore * 1.3, (0.15, 0.15, 0.15, 1), y)
     rod = barrel.add_body(name=f"{which}_rod")
     rod.add_joint(type=mujoco.mjtJoint.mjJNT_SLIDE, name=f"{which}_cylinder", axis=_v3(axis),

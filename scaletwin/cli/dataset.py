@@ -18,7 +18,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--soils", nargs="+", default=["gravel"], help="soil names (default gravel)")
     p.add_argument("--pile-distances", nargs="+", type=float, default=[0.5],
                    help="edge-to-pile distances at reset, boom lengths (default 0.5)")
-    p.add_argument("--pile-heights", nargs="+", type=float, default=[0.7], help="pile heights, boom lengths (default 0.7)")
+    p.add_argument("--pile-heights", nargs="+", type=float, default=[0.7],
+                   help="pile heights, boom lengths (default 0.7)")
     seeds = p.add_mutually_exclusive_group()
     seeds.add_argument("--seeds", nargs="+", type=int, help="reset seeds (default 0)")
     seeds.add_argument("--episodes", type=int, help="seeds 0..N-1 for every grid point")

@@ -1,8 +1,15 @@
-"""``scaletwin simulate``: one standard dig cycle at a chosen scale; prints KPIs and peak signals."""
+"""``scaletwin simulate``: one standard dig cycle at a chosen scale; prints KPIs and peak signals.
+
+``--parquet FILE`` records the episode (:mod:`scaletwin_envs.recording`), ``--rrd FILE`` logs it for the rerun
+viewer (``scaletwin view FILE``); both are written atomically while the episode runs.
+"""
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+from collections.abc import Callable, Iterator
+from typing import Any
 
 import gymnasium as gym
 from rich.console import Console
@@ -18,12 +25,41 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("simulate", help="run one dig cycle and print its KPIs and peak signals")
     add_machine_args(p)
     p.add_argument("--json", metavar="FILE", help="also write KPIs and peaks as JSON")
+    p.add_argument("--parquet", metavar="FILE", help="also record the episode as Parquet (SI, units, provenance)")
+    p.add_argument("--rrd", metavar="FILE", help="also log the episode for rerun (.rrd; open with scaletwin view)")
     p.set_defaults(func=run)
+
+
+@contextlib.contextmanager
+def _recorders(args: argparse.Namespace, env: gym.Env, policy: Any) -> Iterator[Callable[..., None] | None]:
+    """An on_step callback feeding the requested outputs; files are written when the block exits cleanly."""
+    callbacks: list[Callable[..., None]] = []
+    with contextlib.ExitStack() as stack:
+        if args.rrd:
+            from scaletwin_envs.recording.atomic import atomic_path
+            from scaletwin_envs.recording.rerun_log import RerunLogger, open_stream
+
+            rec = open_stream(stack.enter_context(atomic_path(args.rrd)), name=f"{args.scale} seed {args.seed}")
+            logger = RerunLogger(env, rec)
+            stack.callback(rec.disconnect)
+            stack.callback(logger.close)
+            callbacks.append(logger)
+        recorder = None
+        if args.parquet:
+            from scaletwin_envs.recording.recorder import EpisodeRecorder, describe_policy
+
+            recorder = EpisodeRecorder(env, args.seed, describe_policy(policy))
+            callbacks.append(recorder)
+        yield (lambda *a: [cb(*a) for cb in callbacks]) if callbacks else None
+        if recorder is not None:
+            recorder.recording().to_parquet(args.parquet)
 
 
 def run(args: argparse.Namespace) -> int:
     env = gym.make(scaletwin_envs.ENV_ID, scale=args.scale, law=args.law, soil=args.soil)
-    episode = run_episode(env, ScriptedDigPolicy(), seed=args.seed)
+    policy = ScriptedDigPolicy()
+    with _recorders(args, env, policy) as on_step:
+        episode = run_episode(env, policy, seed=args.seed, on_step=on_step)
     kpis, peaks = episode.kpis.to_dict(), episode.peaks()
     loader = env.unwrapped.loader
     console = Console()
@@ -41,4 +77,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         write_json(args.json, {"loader": loader.to_dict(), "soil": args.soil, "seed": args.seed, "kpis": kpis,
                                "peaks": peaks})
+    for kind, path in (("recording", args.parquet), ("rerun log", args.rrd)):
+        if path:
+            console.print(f"{kind}: {path}")
     return 1 if kpis["sim_error"] else 0
