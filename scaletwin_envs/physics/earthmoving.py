@@ -24,10 +24,11 @@ _BETAS = np.linspace(math.radians(5.0), math.radians(85.0), 321)
 def n_factors(rake: float, phi: float, delta: float, beta: np.ndarray | float) -> tuple[np.ndarray, ...]:
     """N_γ, N_c, N_q, N_ca for rake ρ, friction φ, wall friction δ and failure angle β (all rad)."""
     cot = lambda a: 1.0 / np.tan(a)  # noqa: E731
-    denom = np.cos(rake + delta) + np.sin(rake + delta) * cot(np.asarray(beta) + phi)
-    n_gamma = (cot(beta) + cot(rake)) / (2.0 * denom)
-    n_c = (1.0 + cot(beta) * cot(np.asarray(beta) + phi)) / denom
-    n_ca = (1.0 - cot(rake) * cot(np.asarray(beta) + phi)) / denom
+    with np.errstate(divide="ignore", invalid="ignore"):  # wedges with a vanishing denominator do not exist
+        denom = np.cos(rake + delta) + np.sin(rake + delta) * cot(np.asarray(beta) + phi)
+        n_gamma = (cot(beta) + cot(rake)) / (2.0 * denom)
+        n_c = (1.0 + cot(beta) * cot(np.asarray(beta) + phi)) / denom
+        n_ca = (1.0 - cot(rake) * cot(np.asarray(beta) + phi)) / denom
     return n_gamma, n_c, 2.0 * n_gamma, n_ca
 
 
