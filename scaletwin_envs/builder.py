@@ -19,7 +19,6 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from scaletwin_envs.physics.kinematics import LinkagePose
 from scaletwin_envs.physics.mass_layout import ROD_FRACTION, BodyLayout, chassis_com, cylinder_axis, linkage_layout
 from scaletwin_envs.specs.loader import GRAVITY, LoaderSpec
 
@@ -57,27 +56,28 @@ class BuildOptions:
         return [0.9, 0.95, self.constraint_width, 0.5, 2.0]
 
 
-def _v3(p: np.ndarray | tuple[float, float], y: float = 0.0) -> list[float]:
+def xz_to_xyz(p: np.ndarray | tuple[float, float], y: float = 0.0) -> list[float]:
+    """A planar (x, z) point as a MuJoCo 3-vector at lateral offset y (m)."""
     return [float(p[0]), y, float(p[1])]
 
 
 def _inertial(body: mujoco.MjsBody, mass: float, com: np.ndarray, inertia: float) -> None:
     body.explicitinertial = True
     body.mass = mass
-    body.ipos = _v3(com)
+    body.ipos = xz_to_xyz(com)
     body.inertia = [inertia, inertia, inertia]
 
 
 def _capsule(body: mujoco.MjsBody, a: np.ndarray, b: np.ndarray, radius: float, rgba: tuple[float, ...],
              y: float = 0.0) -> None:
-    body.add_geom(type=mujoco.mjtGeom.mjGEOM_CAPSULE, fromto=_v3(a, y) + _v3(b, y), size=[radius, 0, 0],
+    body.add_geom(type=mujoco.mjtGeom.mjGEOM_CAPSULE, fromto=xz_to_xyz(a, y) + xz_to_xyz(b, y), size=[radius, 0, 0],
                   contype=0, conaffinity=0, rgba=list(rgba))
 
 
 def _hinged_body(parent: mujoco.MjsBody, name: str, joint: str, pos: np.ndarray, layout: BodyLayout
                  ) -> mujoco.MjsBody:
     """A child body at ``pos`` (m, in the parent's frame) turning about the y axis, with its layout's inertia."""
-    body = parent.add_body(name=name, pos=_v3(pos))
+    body = parent.add_body(name=name, pos=xz_to_xyz(pos))
     body.add_joint(type=mujoco.mjtJoint.mjJNT_HINGE, name=joint, axis=list(HINGE_AXIS))
     _inertial(body, layout.mass, layout.com, layout.inertia)
     return body
@@ -103,7 +103,7 @@ def build_spec(spec: LoaderSpec, options: BuildOptions | None = None) -> mujoco.
     _chassis_visual(frame, spec)
     piv = np.asarray(g.boom_pivot)
     for name in ("boom_pivot", "lift_frame_pin", "tilt_frame_pin"):
-        frame.add_site(name=name, pos=_v3(getattr(g, name)), size=[0.02 * L, 0, 0])
+        frame.add_site(name=name, pos=xz_to_xyz(getattr(g, name)), size=[0.02 * L, 0, 0])
     boom = _add_boom(frame, spec, lay, piv)
     _add_bucket(boom, spec, lay, piv, opt)
     _add_bell_crank(boom, spec, lay, piv)
@@ -165,7 +165,7 @@ def _add_boom(frame: mujoco.MjsBody, spec: LoaderSpec, lay: dict, piv: np.ndarra
     _capsule(boom, c, 0.5 * o, 0.025 * L, (0.9, 0.7, 0.1, 1))
     _capsule(boom, lb, 0.45 * o, 0.025 * L, (0.9, 0.7, 0.1, 1))
     for name, p in (("bell_crank_pivot", c), ("lift_boom_pin", lb)):
-        boom.add_site(name=name, pos=_v3(p), size=[0.02 * L, 0, 0])
+        boom.add_site(name=name, pos=xz_to_xyz(p), size=[0.02 * L, 0, 0])
     return boom
 
 
@@ -182,14 +182,14 @@ def _add_bucket(boom: mujoco.MjsBody, spec: LoaderSpec, lay: dict, piv: np.ndarr
         normal = np.array([-vec[1], vec[0]]) / float(np.hypot(*vec))
         mid = 0.5 * (a + z) + t * (normal if np.dot(normal, inward) > 0 else -normal)
         angle = math.atan2(vec[1], vec[0])
-        bucket.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, pos=_v3(mid), size=[0.5 * float(np.hypot(*vec)), half_w, t],
+        bucket.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, pos=xz_to_xyz(mid), size=[0.5 * float(np.hypot(*vec)), half_w, t],
                         quat=[math.cos(-angle / 2), 0, math.sin(-angle / 2), 0], rgba=[0.35, 0.35, 0.38, 1],
                         condim=1, solref=[opt.constraint_timeconst, 1.0], solimp=opt.solimp)
     for y in (-half_w, half_w):
         _capsule(bucket, edge, top, 0.5 * t, (0.35, 0.35, 0.38, 1), y)
     for name, p in (("pin_O", np.zeros(2)), ("pin_21", np.asarray(g.pin_21) - o), ("bucket_edge", edge),
                     ("bucket_heel", heel), ("bucket_back_top", top)):
-        bucket.add_site(name=name, pos=_v3(p), size=[0.02 * L, 0, 0])
+        bucket.add_site(name=name, pos=xz_to_xyz(p), size=[0.02 * L, 0, 0])
     payload = bucket.add_body(name="payload")
     _inertial(payload, 1e-9 * b.mass, b.com, 1e-9 * b.inertia)
 
@@ -200,12 +200,12 @@ def _add_bell_crank(boom: mujoco.MjsBody, spec: LoaderSpec, lay: dict, piv: np.n
     crank = _hinged_body(boom, "bell_crank", "bell_crank_hinge", c - piv, lay["bell_crank"])
     top, bottom = np.asarray(g.bell_crank_top) - c, np.asarray(g.bell_crank_bottom) - c
     _capsule(crank, top, bottom, 0.02 * L, (0.2, 0.2, 0.2, 1), 0.05 * L)
-    crank.add_site(name="bell_crank_top", pos=_v3(top), size=[0.02 * L, 0, 0])
-    crank.add_site(name="bell_crank_bottom", pos=_v3(bottom), size=[0.02 * L, 0, 0])
+    crank.add_site(name="bell_crank_top", pos=xz_to_xyz(top), size=[0.02 * L, 0, 0])
+    crank.add_site(name="bell_crank_bottom", pos=xz_to_xyz(bottom), size=[0.02 * L, 0, 0])
     link = _hinged_body(crank, "link_b", "link_b_hinge", bottom, lay["link_b"])
     tip = np.asarray(g.pin_21) - np.asarray(g.bell_crank_bottom)
     _capsule(link, np.zeros(2), tip, 0.015 * L, (0.2, 0.2, 0.2, 1), 0.05 * L)
-    link.add_site(name="link_b_tip", pos=_v3(tip), size=[0.015 * L, 0, 0])
+    link.add_site(name="link_b_tip", pos=xz_to_xyz(tip), size=[0.015 * L, 0, 0])
 
 
 def _add_cylinder(frame: mujoco.MjsBody, spec: LoaderSpec, lay: dict, which: str) -> None:
@@ -217,7 +217,7 @@ def _add_cylinder(frame: mujoco.MjsBody, spec: LoaderSpec, lay: dict, which: str
     barrel = _hinged_body(frame, f"{which}_barrel", f"{which}_barrel_hinge", start, lay[f"{which}_barrel"])
     _capsule(barrel, np.zeros(2), axis * 0.95 * cyl.closed_length, 0.5 * cyl.bore * 1.3, (0.15, 0.15, 0.15, 1), y)
     rod = barrel.add_body(name=f"{which}_rod")
-    rod.add_joint(type=mujoco.mjtJoint.mjJNT_SLIDE, name=f"{which}_cylinder", axis=_v3(axis),
+    rod.add_joint(type=mujoco.mjtJoint.mjJNT_SLIDE, name=f"{which}_cylinder", axis=xz_to_xyz(axis),
                   range=[cyl.closed_length - ref_len, cyl.closed_length + cyl.stroke - ref_len],
                   armature=cylinder_armature(spec),
                   damping=[CYLINDER_DAMPING * cyl.max_extend_force / cyl.extend_speed, 0, 0])
@@ -225,7 +225,7 @@ def _add_cylinder(frame: mujoco.MjsBody, spec: LoaderSpec, lay: dict, which: str
     _inertial(rod, b.mass, b.com, b.inertia)
     _capsule(rod, axis * (ref_len - ROD_FRACTION * cyl.closed_length), axis * ref_len, 0.5 * cyl.rod_diameter,
              (0.8, 0.8, 0.85, 1), y)
-    rod.add_site(name=f"{which}_rod_tip", pos=_v3(axis * ref_len), size=[0.015 * L, 0, 0])
+    rod.add_site(name=f"{which}_rod_tip", pos=xz_to_xyz(axis * ref_len), size=[0.015 * L, 0, 0])
 
 
 def cylinder_armature(spec: LoaderSpec) -> float:
@@ -256,33 +256,3 @@ def _actuators(s: mujoco.MjSpec, spec: LoaderSpec) -> None:
     act.ctrlrange = [-spec.travel_speed, spec.travel_speed]
     act.forcelimited = True
     act.forcerange = [-traction, traction]
-
-
-def qpos_for_pose(model: mujoco.MjModel, spec: LoaderSpec, pose: LinkagePose, drive: float = 0.0) -> np.ndarray:
-    """Joint positions that assemble ``pose`` exactly (every loop closed)."""
-    _, lift_ref = cylinder_axis(spec, "lift")
-    _, tilt_ref = cylinder_axis(spec, "tilt")
-    values = {
-        "drive": drive, "boom_hinge": pose.boom, "bucket_hinge": pose.bucket, "bell_crank_hinge": pose.bell_crank,
-        "link_b_hinge": pose.link_b, "lift_barrel_hinge": pose.lift_angle, "lift_cylinder": pose.lift_length - lift_ref,
-        "tilt_barrel_hinge": pose.tilt_angle, "tilt_cylinder": pose.tilt_length - tilt_ref,
-    }
-    qpos = model.qpos0.copy()
-    for name, v in values.items():
-        qpos[model.joint(name).qposadr[0]] = v
-    return qpos
-
-
-def set_payload(model: mujoco.MjModel, data: mujoco.MjData, mass: float, com_local: np.ndarray,
-                radius_of_gyration: float) -> None:
-    """Write the load carried by the bucket into the ``payload`` body (kg, m relative to O) and refresh
-    MuJoCo's derived constants. A floor of 1e-9 × bucket mass keeps the body well defined when empty."""
-    b = model.body("payload").id
-    floor = 1e-9 * float(model.body_mass[model.body("bucket").id])
-    m = max(mass, floor)
-    model.body_mass[b] = m
-    model.body_ipos[b] = _v3(com_local)
-    model.body_inertia[b] = m * radius_of_gyration**2
-    qpos = data.qpos.copy()  # mj_setConst leaves qpos at qpos0
-    mujoco.mj_setConst(model, data)
-    data.qpos[:] = qpos

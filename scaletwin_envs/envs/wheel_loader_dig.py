@@ -28,13 +28,13 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
-from scaletwin_envs.builder import PILE_COLUMNS, qpos_for_pose, set_payload
 from scaletwin_envs.envs.loader_base import DEFAULT_EXTERNAL_FORCE_SUBSTEPS, DEFAULT_FRAME_SKIP, LoaderEnv
 from scaletwin_envs.envs.phases import DigPhase, classify
 from scaletwin_envs.physics.bucket import load_centroid
 from scaletwin_envs.physics.dig import DigForces, DigModel
 from scaletwin_envs.physics.kinematics import solve_pose
 from scaletwin_envs.physics.pile import Pile
+from scaletwin_envs.runtime import draw_pile, qpos_for_pose, set_payload
 from scaletwin_envs.specs.laws import PRODUCT_LINE, ScalingLaw
 from scaletwin_envs.specs.loader import GRAVITY, LoaderSpec
 from scaletwin_envs.specs.soil import SoilSpec, make_soil
@@ -296,20 +296,5 @@ class WheelLoaderDigEnv(LoaderEnv):
 
     # -- rendering ---------------------------------------------------------------------------------------
     def render(self) -> np.ndarray | None:
-        self._draw_pile()
+        draw_pile(self.model, self.data, self.pile)
         return super().render()
-
-    def _draw_pile(self) -> None:
-        x, h = self.pile.x, self.pile.h
-        edges = np.linspace(x[0], x[-1], PILE_COLUMNS + 1)
-        for k in range(PILE_COLUMNS):
-            sel = (x >= edges[k]) & (x <= edges[k + 1])
-            height = max(float(h[sel].mean()) if sel.any() else 0.0, 1e-4 * self.length)
-            gid = self.model.geom(f"pile_{k}").id
-            self.model.geom_size[gid][0] = 0.5 * (edges[k + 1] - edges[k])
-            self.model.geom_size[gid][2] = 0.5 * height
-            self.model.geom_pos[gid] = (0.5 * (edges[k] + edges[k + 1]), 0.0, 0.5 * height)
-            self.data.geom_xpos[gid] = self.model.geom_pos[gid]  # world geoms: kinematics would copy it next step
-            # the renderer culls by these bounds, which the compiler sized for the initial tiny boxes
-            self.model.geom_rbound[gid] = float(np.linalg.norm(self.model.geom_size[gid]))
-            self.model.geom_aabb[gid, 3:] = self.model.geom_size[gid]

@@ -6,10 +6,11 @@ import mujoco
 import numpy as np
 import pytest
 
-from scaletwin_envs.builder import build_model, qpos_for_pose, set_payload
+from scaletwin_envs.builder import build_model
 from scaletwin_envs.physics.bucket import load_centroid
 from scaletwin_envs.physics.kinematics import LinkageUnreachable, pose_from_cylinders, solve_pose
 from scaletwin_envs.physics.statics import solve_static
+from scaletwin_envs.runtime import qpos_for_pose, set_payload
 from scaletwin_envs.signals import SignalReader
 from scaletwin_envs.specs import make_loader
 
