@@ -182,7 +182,8 @@ def _add_bucket(boom: mujoco.MjsBody, spec: LoaderSpec, lay: dict, piv: np.ndarr
         normal = np.array([-vec[1], vec[0]]) / float(np.hypot(*vec))
         mid = 0.5 * (a + z) + t * (normal if np.dot(normal, inward) > 0 else -normal)
         angle = math.atan2(vec[1], vec[0])
-        bucket.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, pos=xz_to_xyz(mid), size=[0.5 * float(np.hypot(*vec)), half_w, t],
+        size = [0.5 * float(np.hypot(*vec)), half_w, t]
+        bucket.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, pos=xz_to_xyz(mid), size=size,
                         quat=[math.cos(-angle / 2), 0, math.sin(-angle / 2), 0], rgba=[0.35, 0.35, 0.38, 1],
                         condim=1, solref=[opt.constraint_timeconst, 1.0], solimp=opt.solimp)
     for y in (-half_w, half_w):
