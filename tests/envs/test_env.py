@@ -115,3 +115,22 @@ def test_render_rgb_array_scales_camera_with_machine() -> None:
         assert frame.shape == (120, 160, 3)
         assert frame.std() > 5  # not a blank image
         env.close()
+
+
+@pytest.mark.parametrize("scale", ["mini", "wa475", 0.05, 3.0])
+def test_loops_are_closed_at_reset(scale: str | float) -> None:
+    env = gym.make(scaletwin_envs.ENV_ID, scale=scale)
+    for seed in range(3):
+        env.reset(seed=seed)
+        d = env.unwrapped.data
+        for a, b in (("pin_21", "link_b_tip"), ("lift_boom_pin", "lift_rod_tip"), ("bell_crank_top", "tilt_rod_tip")):
+            assert np.linalg.norm(d.site(a).xpos - d.site(b).xpos) < 1e-9 * env.unwrapped.length
+
+
+def test_scale_accepts_a_loader_spec_and_distortions() -> None:
+    spec = scaletwin_envs.make_loader(0.7, distortion={"pressure": 1.3})
+    env = gym.make(scaletwin_envs.ENV_ID, scale=spec)
+    assert env.unwrapped.loader is spec
+    env = gym.make(scaletwin_envs.ENV_ID, scale=0.7, law="froude", distortion={"mass": 1.1})
+    assert env.unwrapped.loader.operating_mass == pytest.approx(
+        1.1 * scaletwin_envs.make_loader(0.7, law="froude").operating_mass)
