@@ -33,6 +33,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 @contextlib.contextmanager
 def _recorders(args: argparse.Namespace, env: gym.Env, policy: Any) -> Iterator[Callable[..., None] | None]:
     """An on_step callback feeding the requested outputs; files are written when the block exits cleanly."""
+    if not (args.rrd or args.parquet):
+        yield None
+        return
+    from scaletwin_envs.recording.recorder import describe_policy
+
     callbacks: list[Callable[..., None]] = []
     with contextlib.ExitStack() as stack:
         if args.rrd:
@@ -40,17 +45,22 @@ def _recorders(args: argparse.Namespace, env: gym.Env, policy: Any) -> Iterator[
             from scaletwin_envs.recording.rerun_log import RerunLogger, open_stream
 
             rec = open_stream(stack.enter_context(atomic_path(args.rrd)), name=f"{args.scale} seed {args.seed}")
-            logger = RerunLogger(env, rec)
+            logger = RerunLogger(env, rec, seed=args.seed, policy=describe_policy(policy))
             stack.callback(rec.disconnect)
             stack.callback(logger.close)
             callbacks.append(logger)
         recorder = None
         if args.parquet:
-            from scaletwin_envs.recording.recorder import EpisodeRecorder, describe_policy
+            from scaletwin_envs.recording.recorder import EpisodeRecorder
 
             recorder = EpisodeRecorder(env, args.seed, describe_policy(policy))
             callbacks.append(recorder)
-        yield (lambda *a: [cb(*a) for cb in callbacks]) if callbacks else None
+
+        def on_step(step: int, action: Any, info: dict[str, Any]) -> None:
+            for cb in callbacks:
+                cb(step, action, info)
+
+        yield on_step
         if recorder is not None:
             recorder.recording().to_parquet(args.parquet)
 

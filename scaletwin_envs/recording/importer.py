@@ -49,8 +49,9 @@ def to_si(values: np.ndarray, unit: str, si_unit: str) -> np.ndarray:
     """
     ureg = unit_registry()
     src, dst = _parse(unit), _parse(si_unit)
-    if ureg.Quantity(1.0, src).dimensionality != ureg.Quantity(1.0, dst).dimensionality:
-        raise ValueError(f"{unit!r} cannot be converted to {si_unit!r}")
+    have, want = ureg.Quantity(1.0, src).dimensionality, ureg.Quantity(1.0, dst).dimensionality
+    if have != want:
+        raise ValueError(f"its dimension is {have}, not {want}")
     return np.asarray(ureg.Quantity(np.asarray(values, dtype=np.float64), src).to(dst).magnitude, dtype=np.float64)
 
 
@@ -78,7 +79,8 @@ def import_recording(path: str | Path, *, provenance: Provenance | None = None,
         return read_recording(path)
     raw = _read_table(path)
     columns, units, problems = _convert(raw, ignore_unknown)
-    missing = [c for c in REQUIRED_IMPORT if c not in columns]
+    named = {_split(h)[0] for h in raw.columns}
+    missing = [c for c in REQUIRED_IMPORT if c not in named]
     if missing:
         problems.insert(0, f"missing required columns: {', '.join(missing)}")
     if problems:
@@ -115,8 +117,7 @@ def _convert(raw: pd.DataFrame, ignore_unknown: bool) -> tuple[dict[str, Any], d
     units: dict[str, str] = {}
     problems: list[str] = []
     for header in raw.columns:
-        m = _HEADER.match(str(header))
-        name, unit = (m["name"], m["unit"]) if m else (str(header), None)
+        name, unit = _split(header)
         is_joint = name.startswith(("q_", "qd_"))
         if name not in known and not is_joint:
             if not ignore_unknown:
@@ -135,8 +136,14 @@ def _convert(raw: pd.DataFrame, ignore_unknown: bool) -> tuple[dict[str, Any], d
             columns[name] = raw[header].to_numpy() if si == NON_QUANTITY else to_si(raw[header].to_numpy(), unit, si)
             units[name] = si
         except (ValueError, pint.PintError) as exc:
-            problems.append(f"column {header!r}: unit {unit!r} is not convertible to {si!r} ({exc})")
+            problems.append(f"column {header!r}: unit {unit!r} is not convertible to {si!r}: {exc}")
     return columns, units, problems
+
+
+def _split(header: object) -> tuple[str, str | None]:
+    """``"F21 [kN]"`` → ``("F21", "kN")``; a header without brackets has no unit (None)."""
+    m = _HEADER.match(str(header))
+    return (m["name"], m["unit"]) if m else (str(header), None)
 
 
 def _joint_unit(name: str, unit: str) -> str:

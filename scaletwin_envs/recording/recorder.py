@@ -22,7 +22,7 @@ import pandas as pd
 
 import scaletwin_envs
 from scaletwin_envs.recording.recording import Provenance, Recording
-from scaletwin_envs.recording.schema import COMMAND_COLUMNS, EPISODE_UNITS, column_units, joint_units
+from scaletwin_envs.recording.schema import COMMAND_COLUMNS, EPISODE_NUMERIC, column_units, joint_units
 from scaletwin_envs.signals import SIGNAL_UNITS
 
 StepCallback = Callable[[int, np.ndarray, dict[str, Any]], None]
@@ -47,9 +47,9 @@ class EpisodeRecorder:
         self.seed, self.policy = seed, policy
         model = self.unwrapped.model
         self.joints = joint_units(model)
-        jids = range(model.njnt)
-        self._qadr = np.array([model.jnt_qposadr[j] for j in jids], dtype=np.intp)
-        self._dadr = np.array([model.jnt_dofadr[j] for j in jids], dtype=np.intp)
+        # joint_units orders the columns q_<j>, qd_<j> per joint: gather qpos and qvel in that order
+        self._q = np.array([model.jnt_qposadr[j] for j in range(model.njnt)], dtype=np.intp)
+        self._qd = np.array([model.jnt_dofadr[j] for j in range(model.njnt)], dtype=np.intp)
         self._signals = tuple(SIGNAL_UNITS)
         self._rows: list[list[float]] = []
         self._states: list[np.ndarray] = []
@@ -71,14 +71,14 @@ class EpisodeRecorder:
                info.get("fill_factor", _NAN), info.get("spilled_mass", _NAN), info.get("hydraulic_work", _NAN),
                float(reward)]
         self._rows.append(row)
-        self._states.append(np.concatenate((data.qpos[self._qadr], data.qvel[self._dadr])))
+        self._states.append(np.column_stack((data.qpos[self._q], data.qvel[self._qd])).ravel())
         self._phases.append(str(info.get("phase", "")))
         self._last_info = info
 
     def recording(self) -> Recording:
         """The recording of the steps seen so far."""
         units = column_units(self.joints)
-        numeric = ("step", "time", *COMMAND_COLUMNS, *self._signals, *list(EPISODE_UNITS)[:4])
+        numeric = ("step", "time", *COMMAND_COLUMNS, *self._signals, *EPISODE_NUMERIC)
         table = np.asarray(self._rows, dtype=np.float64).reshape(len(self._rows), len(numeric))
         states = np.asarray(self._states, dtype=np.float64).reshape(len(self._states), len(self.joints))
         cols: dict[str, Any] = dict(zip(numeric, table.T, strict=True))
@@ -90,18 +90,24 @@ class EpisodeRecorder:
 
     def provenance(self) -> Provenance:
         """Provenance of this episode (machine, soil, seed, timing, env arguments, versions, model hash)."""
-        u = self.unwrapped
         extra: dict[str, Any] = {}
         if self._last_info.get("sim_error"):
             extra["sim_error"] = str(self._last_info["sim_error"])
-        return Provenance(
-            machine=u.loader.to_dict() if hasattr(u, "loader") else None,
-            soil=u.soil.to_dict() if hasattr(u, "soil") else None,
-            seed=self.seed, timestep=float(u.model.opt.timestep), frame_skip=int(u.frame_skip),
-            control_dt=float(u.dt), env_id=_env_id(self.env), env_kwargs=env_kwargs(self.env), policy=self.policy,
-            package_version=scaletwin_envs.__version__, mujoco_version=mujoco.__version__,
-            model_sha256=self._model_sha256, source="simulation", extra=extra,
-        )
+        return env_provenance(self.env, self.seed, self.policy, self._model_sha256, extra)
+
+
+def env_provenance(env: gym.Env, seed: int | None, policy: str = "unknown", model_sha256: str | None = None,
+                   extra: Mapping[str, Any] | None = None) -> Provenance:
+    """Provenance of an episode of ``env`` (``model_sha256`` defaults to the model as it is now)."""
+    u = env.unwrapped
+    return Provenance(
+        machine=u.loader.to_dict() if hasattr(u, "loader") else None,
+        soil=u.soil.to_dict() if hasattr(u, "soil") else None,
+        seed=seed, timestep=float(u.model.opt.timestep), frame_skip=int(u.frame_skip), control_dt=float(u.dt),
+        env_id=_env_id(env), env_kwargs=env_kwargs(env), policy=policy, package_version=scaletwin_envs.__version__,
+        mujoco_version=mujoco.__version__, model_sha256=model_sha256 or model_fingerprint(u.model),
+        source="simulation", extra=dict(extra or {}),
+    )
 
 
 def record_episode(env: gym.Env, policy: Any, seed: int | None = None, *, max_steps: int | None = None,

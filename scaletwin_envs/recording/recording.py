@@ -126,10 +126,10 @@ class Recording:
                 "provenance": self.provenance.to_dict()}
 
     def to_arrow(self) -> pa.Table:
-        """The table with the metadata document attached."""
-        table = pa.Table.from_pandas(self.data, preserve_index=False)
-        meta = dict(table.schema.metadata or {})
-        meta[METADATA_KEY] = json.dumps(self.metadata(), sort_keys=True, allow_nan=True).encode()
+        """The table (NaN stays NaN, not null) with the metadata document attached."""
+        columns = [_arrow_column(self.data[c]) for c in self.data.columns]
+        table = pa.Table.from_arrays(columns, names=[str(c) for c in self.data.columns])
+        meta = {METADATA_KEY: json.dumps(self.metadata(), sort_keys=True, allow_nan=True).encode()}
         return table.replace_schema_metadata(meta)
 
     def to_parquet(self, path: str | Path) -> Path:
@@ -142,6 +142,13 @@ class Recording:
         """Same table (NaN equal to NaN), units, provenance and schema version."""
         return (self.schema_version == other.schema_version and self.units == other.units
                 and self.provenance == other.provenance and self.data.equals(other.data))
+
+
+def _arrow_column(series: pd.Series) -> pa.Array:
+    """Numeric and bool columns through NumPy (fast, NaN kept as NaN); text and others through pandas."""
+    if pd.api.types.is_numeric_dtype(series.dtype) or pd.api.types.is_bool_dtype(series.dtype):
+        return pa.array(series.to_numpy())
+    return pa.array(series, from_pandas=True)
 
 
 def _json_form(value: Any) -> Any:

@@ -14,6 +14,7 @@ The blueprint (3D view, phase timeline and log, tabs of time-series views) is st
 
 from __future__ import annotations
 
+import json
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
@@ -25,8 +26,10 @@ import rerun.blueprint as rrb
 
 from scaletwin_envs.recording.atomic import atomic_path
 from scaletwin_envs.recording.groups import GROUPS, dimensionless_groups
-from scaletwin_envs.recording.recording import Recording
+from scaletwin_envs.recording.recorder import env_provenance
+from scaletwin_envs.recording.recording import Provenance, Recording
 from scaletwin_envs.recording.rerun_scene import SceneLogger, log_pile, send_load
+from scaletwin_envs.recording.schema import SCHEMA_VERSION
 from scaletwin_envs.signals import SIGNAL_UNITS
 
 APP_ID = "scaletwin"
@@ -65,6 +68,13 @@ def open_stream(path: str | Path | None = None, *, spawn: bool = False, name: st
     if name:
         rec.send_recording_name(name)
     return rec
+
+
+def send_provenance(rec: rr.RecordingStream, provenance: Provenance) -> None:
+    """Store the provenance (JSON) and the schema/package versions as the recording property ``scaletwin``."""
+    doc = json.dumps(provenance.to_dict(), sort_keys=True)
+    rec.send_property("scaletwin", rr.AnyValues(provenance=doc, schema_version=SCHEMA_VERSION,
+                                                package_version=provenance.package_version))
 
 
 def time_indexes(steps: Iterable[int], times: Iterable[float]) -> list[rr.TimeColumn]:
@@ -121,11 +131,13 @@ class RerunLogger:
         env: the env being stepped (its MuJoCo model, pile and soil are read).
         rec: the stream (see :func:`open_stream`; ``rr.RecordingStream.spawn`` for a live viewer).
         signals, scene: what to log.
+        seed, policy: stored in the provenance sent at reset (None: no provenance is sent).
     """
 
     def __init__(self, env: gym.Env, rec: rr.RecordingStream, *, signals: bool = True, scene: bool = True,
-                 flush_every: int = 64) -> None:
+                 flush_every: int = 64, seed: int | None = None, policy: str = "unknown") -> None:
         self.env, self.unwrapped, self.rec = env, env.unwrapped, rec
+        self.seed, self.policy = seed, policy
         self.do_signals, self.do_scene, self.flush_every = signals, scene, max(1, int(flush_every))
         loader = getattr(self.unwrapped, "loader", None)
         length = loader.characteristic_length if loader is not None else None
@@ -159,6 +171,8 @@ class RerunLogger:
 
     def _on_reset(self) -> None:
         self._pile_h = None
+        if self.seed is not None:
+            send_provenance(self.rec, env_provenance(self.env, self.seed, self.policy))
         if self.do_scene:
             self.scene.log_geometry(self.rec)
             self._log_pile(0, 0.0)
@@ -233,6 +247,7 @@ def log_episode_rrd(recording: Recording, path: str | Path, env: gym.Env | None 
     name = f"{(prov.machine or {}).get('name', 'external')} seed {prov.seed}"
     with atomic_path(path) as tmp:
         rec = open_stream(tmp, name=name)
+        send_provenance(rec, prov)
         send_recording(rec, recording)
         if scene and prov.seed is not None and (env is not None or prov.machine is not None):
             _replay_scene(rec, recording, env)
@@ -243,7 +258,7 @@ def log_episode_rrd(recording: Recording, path: str | Path, env: gym.Env | None 
 
 def _replay_scene(rec: rr.RecordingStream, recording: Recording, env: gym.Env | None) -> None:
     from scaletwin_envs.recording.recorder import record_episode
-    from scaletwin_envs.recording.replay import CommandPlayback, make_twin
+    from scaletwin_envs.recording.replay import CommandPlayback, make_twin  # replay imports the recorder
 
     twin = env if env is not None else make_twin(recording.provenance)
     logger = RerunLogger(twin, rec, signals=False)

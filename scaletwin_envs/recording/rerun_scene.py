@@ -55,13 +55,13 @@ class SceneLogger:
                 rec.log(f"{path}/geometry/{kind}", _archetype(kind, parts), static=True)
 
     def body_geometry(self, body: int) -> dict[str, list[dict[str, Any]]]:
-        """The body's geoms by kind, in the body frame: ``pos`` (m; a capsule's start, else its centre),
-        ``quat`` (MuJoCo w, x, y, z), ``rgba``, and ``r``/``len`` (m) or ``half`` (half sizes, m)."""
+        """The body's geoms by kind, in the body frame: ``geom`` (id), ``pos`` (m; a capsule's start, else its
+        centre), ``quat`` (MuJoCo w, x, y, z), ``rgba``, and ``r``/``len`` (m) or ``half`` (half sizes, m)."""
         m = self.model
         parts: dict[str, list[dict[str, Any]]] = {"capsules": [], "cylinders": [], "boxes": [], "spheres": []}
         for g in np.nonzero(m.geom_bodyid == body)[0]:
             kind, size, pos, quat = int(m.geom_type[g]), m.geom_size[g], m.geom_pos[g], m.geom_quat[g]
-            item = {"quat": quat, "rgba": m.geom_rgba[g]}
+            item = {"geom": int(g), "quat": quat, "rgba": m.geom_rgba[g]}
             if kind == mujoco.mjtGeom.mjGEOM_CAPSULE:  # rerun capsules start at their translation, along +z
                 parts["capsules"].append({**item, "r": size[0], "len": 2 * size[1],
                                           "pos": pos - _rotate(quat, np.array([0.0, 0.0, size[1]]))})

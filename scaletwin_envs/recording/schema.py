@@ -30,6 +30,7 @@ NON_QUANTITY = "-"
 INDEX_UNITS: dict[str, str] = {"step": "1", "time": "s"}
 COMMAND_COLUMNS = ("cmd_lift", "cmd_tilt", "cmd_drive")
 COMMAND_UNITS: dict[str, str] = dict.fromkeys(COMMAND_COLUMNS, "1")
+EPISODE_NUMERIC = ("fill_factor", "spilled_mass", "hydraulic_work", "reward")
 EPISODE_UNITS: dict[str, str] = {
     "fill_factor": "1", "spilled_mass": "kg", "hydraulic_work": "J", "reward": "1", "phase": NON_QUANTITY,
 }

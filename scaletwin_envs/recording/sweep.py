@@ -33,6 +33,8 @@ from scaletwin_envs.recording.recording import read_recording
 from scaletwin_envs.recording.schema import SCHEMA_VERSION
 
 MANIFEST = "manifest.json"
+SERIAL_MAX = 8  # sweeps with at most this many episodes to run go serially when no executor is given
+MANIFEST_INTERVAL = 2.0  # s between manifest rewrites while a sweep runs (and once at the end)
 PolicyFactory = Callable[..., Any]
 
 
@@ -172,7 +174,8 @@ def run_sweep(spec: SweepSpec, out_dir: str | Path, executor: str | int | Execut
 
     Args:
         spec: the grid.  out_dir: dataset folder (created).
-        executor: see :func:`make_executor` (None: local processes on all cores).
+        executor: see :func:`make_executor` (None: local processes on all cores, or serial for at most
+            :data:`SERIAL_MAX` episodes, where process start-up would cost more than it saves).
         progress: show a tqdm bar.
     """
     out = Path(out_dir)
@@ -183,12 +186,17 @@ def run_sweep(spec: SweepSpec, out_dir: str | Path, executor: str | int | Execut
     skipped, failed, start = len(tasks) - len(todo), 0, time.perf_counter()
     _write_manifest(out, manifest)
     bar = tqdm(total=len(tasks), initial=skipped, desc="episodes", unit="ep", disable=not progress)
+    written = time.monotonic()
     try:
+        if executor is None and len(todo) <= SERIAL_MAX:
+            executor = "serial"  # starting processes costs seconds, more than a few episodes
         for _, summary in make_executor(executor).map_unordered(run_task, [(t, str(out)) for t in todo]):
             manifest["episodes"][summary["key"]].update(summary)
             failed += summary["status"] == "failed"
             bar.update(1)
-            _write_manifest(out, manifest)
+            if time.monotonic() - written >= MANIFEST_INTERVAL:  # the files are the truth; this is the summary
+                _write_manifest(out, manifest)
+                written = time.monotonic()
     finally:
         bar.close()
         _write_manifest(out, manifest)

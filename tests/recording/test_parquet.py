@@ -40,6 +40,15 @@ def test_one_row_per_step_with_all_columns(recorded):
     assert data["m_load"].iloc[-1] > 0
 
 
+def test_joint_states_match_the_model_and_signals(recorded):
+    data = recorded().data
+    np.testing.assert_array_equal(data["q_boom_hinge"], data["boom_angle"])
+    np.testing.assert_array_equal(data["qd_drive"], data["travel_speed"])
+    np.testing.assert_allclose(data["q_lift_cylinder"] - data["q_lift_cylinder"].min(),
+                               data["lift_extension"] - data["lift_extension"].min(), atol=1e-12)
+    np.testing.assert_array_equal(data["qd_tilt_cylinder"], data["tilt_speed"])
+
+
 def test_units_for_every_column(recorded):
     rec = recorded()
     assert list(rec.units) == list(rec.data.columns)
