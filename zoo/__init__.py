@@ -10,9 +10,13 @@ safetensors weights and a JSON ``card.json`` with the sha256 of every file. Noth
     policy = zoo.load("bucketfill-ppo") # hashes verified, then rebuilt; policy.predict(obs, deterministic=True)
 
 A tampered, missing or malformed file raises :class:`CheckpointError`.
+
+Adding a kind (e.g. ``"scaling-model"``): write its files into a directory and call
+:func:`finish_checkpoint` (card with every file's sha256), then ``register_builder(kind, builder)`` with
+``builder(directory, card, ref) -> object``, called by :func:`load` only after every hash has been verified.
 """
 
-from zoo.checkpoint import CARD_NAME, sha256_file
+from zoo.checkpoint import CARD_NAME, finish_checkpoint, sha256_file, versions
 from zoo.errors import CheckpointError
 from zoo.loading import builders, load, register_builder
 from zoo.policy import ZooPolicy, load_policy, save_policy
@@ -28,6 +32,7 @@ __all__ = [
     "ZooPolicy",
     "builders",
     "card",
+    "finish_checkpoint",
     "list",
     "list_checkpoints",
     "load",
@@ -37,4 +42,5 @@ __all__ = [
     "resolve",
     "save_policy",
     "sha256_file",
+    "versions",
 ]
