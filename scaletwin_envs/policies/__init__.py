@@ -6,7 +6,8 @@ and :mod:`~scaletwin_envs.policies.cloning` clones a teacher into a Stable-Basel
 policies are stored in and loaded from the ``zoo`` package.
 """
 
+from scaletwin_envs.policies.base import DigPolicy
 from scaletwin_envs.policies.random_policy import RandomPolicy
 from scaletwin_envs.policies.scripted import TUNED, ScriptedDigPolicy
 
-__all__ = ["TUNED", "RandomPolicy", "ScriptedDigPolicy"]
+__all__ = ["TUNED", "DigPolicy", "RandomPolicy", "ScriptedDigPolicy"]

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from scaletwin_envs.policies.base import DigPolicy
 
-class RandomPolicy:
+
+class RandomPolicy(DigPolicy):
     """``[lift, tilt, drive]`` drawn uniformly from [-1, 1] every step; ``predict`` mirrors Stable-Baselines3.
 
     Args:
@@ -19,15 +21,8 @@ class RandomPolicy:
         """Restart the command stream from ``seed``."""
         self.rng = np.random.default_rng(seed)
 
-    def reset(self) -> None:
-        """Nothing to forget between episodes (the stream simply continues)."""
-
-    def __call__(self, obs: np.ndarray) -> np.ndarray:
+    def act(self, obs: np.ndarray) -> np.ndarray:
         return self.rng.uniform(-1.0, 1.0, size=3).astype(np.float32)
-
-    def predict(self, obs: np.ndarray, state: object = None, episode_start: object = None,
-                deterministic: bool = True) -> tuple[np.ndarray, None]:
-        return self(obs), None
 
     def __repr__(self) -> str:
         return "RandomPolicy()"

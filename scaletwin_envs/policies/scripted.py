@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from scaletwin_envs.envs.wheel_loader_dig import OBS_INDEX
+from scaletwin_envs.policies.base import DigPolicy
 
 
 class Stage(IntEnum):
@@ -28,7 +29,7 @@ class Stage(IntEnum):
 
 
 @dataclass
-class ScriptedDigPolicy:
+class ScriptedDigPolicy(DigPolicy):
     """A state machine over :data:`OBS_NAMES`; ``predict`` mirrors Stable-Baselines3's signature.
 
     Attributes:
@@ -64,13 +65,6 @@ class ScriptedDigPolicy:
     def reset(self) -> None:
         self.stage = Stage.APPROACH
         self._stall = 0
-
-    def __call__(self, obs: np.ndarray) -> np.ndarray:
-        return self.act(obs)
-
-    def predict(self, obs: np.ndarray, state: object = None, episode_start: object = None,
-                deterministic: bool = True) -> tuple[np.ndarray, None]:
-        return self.act(obs), None
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         o = {k: float(obs[i]) for k, i in OBS_INDEX.items()}
