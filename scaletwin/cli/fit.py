@@ -1,0 +1,100 @@
+"""``scaletwin fit``: recordings → group sets → δ1 models → a model directory with metrics and provenance.
+
+``--data DIR`` is a folder of Parquet recordings (``scaletwin_envs.recording`` sweeps, or ``scaling.data``
+folders), used as it is. Without it, the ``--dataset`` preset is simulated into ``OUT/data/train`` (resumable).
+``--held-out DIR`` holds machines never trained on (default: the held-out preset, λ = 0.5 and 2.5, simulated into
+``OUT/data/held_out``). The output directory layout is
+described in :mod:`scaling.run_io`; every fit is logged to ``models/<name>/fit.rrd`` (rerun).
+"""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import replace
+from pathlib import Path
+
+import pandas as pd
+from rich.console import Console
+from rich.table import Table
+
+from scaletwin.cli import CommandError
+from scaling.data import PRESETS, DataBundle, load_or_generate, load_recordings
+from scaling.pipeline import DEFAULT_MODELS, PipelineConfig, ScalingPipeline, model_specs
+
+DEFAULT_OUT = Path("scaletwin-fit")
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("fit", help="fit δ1 scaling models on recordings; write models, metrics and provenance")
+    p.add_argument("--data", type=Path, help="recordings folder, used as it is (default: simulate --dataset into "
+                                             "OUT/data/train)")
+    p.add_argument("--dataset", default="standard", choices=sorted(PRESETS),
+                   help="preset simulated when no --data is given (default standard: ER12 + WA475)")
+    p.add_argument("--held-out", type=Path, help="recordings of machines never trained on "
+                                                 "(default OUT/data/held_out, simulated: λ = 0.5 and 2.5)")
+    p.add_argument("--no-held-out", action="store_true", help="skip the machines never trained on")
+    p.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"model directory (default ./{DEFAULT_OUT})")
+    p.add_argument("--models", default=",".join(s.name for s in DEFAULT_MODELS),
+                   help="comma list (default: all): " + ", ".join(s.name for s in DEFAULT_MODELS))
+    p.add_argument("--reference", default="static", choices=("static", "random"),
+                   help="ER12 reference row: drawn among rows at rest (default) or among all rows")
+    p.add_argument("--seed", type=int, default=0, help="seed of split, reference draw and fits (default 0)")
+    p.add_argument("--epochs", type=int, help="cap the training epochs of the neural models (quick runs)")
+    p.add_argument("--workers", default=None, help="processes for simulations (integer or 'serial'; default all)")
+    p.add_argument("--no-rerun", action="store_true", help="do not write rerun logs of the fits")
+    p.set_defaults(func=run)
+
+
+def executor_arg(workers: str | int | None) -> str | int | None:
+    """``None`` (all cores), ``"serial"`` or a process count, from the command line."""
+    if workers is None or workers == "serial" or isinstance(workers, int):
+        return workers
+    try:
+        return int(workers)
+    except ValueError as exc:
+        raise CommandError(f"--workers must be an integer or 'serial', got {workers!r}") from exc
+
+
+def _data(given: Path | None, default: Path, preset: str, workers: str | int | None) -> pd.DataFrame:
+    """Recordings of ``given`` as they are, or of ``preset`` simulated into ``default`` (resumable)."""
+    if given is None:
+        return load_or_generate(default, PRESETS[preset], executor_arg(workers))
+    if not given.exists():
+        raise CommandError(f"no recordings folder {given}")
+    return load_recordings(given)
+
+
+def run(args: argparse.Namespace) -> int:
+    console = Console()
+    out: Path = args.out
+    names = [n.strip() for n in args.models.split(",") if n.strip()]
+    try:
+        specs = model_specs(names)
+    except ValueError as exc:
+        raise CommandError(str(exc)) from exc
+    if args.epochs is not None:
+        if args.epochs < 1:
+            raise CommandError("--epochs must be >= 1")
+        specs = tuple(replace(s, config={**s.config, "epochs": args.epochs}) if "epochs" in s.config else s
+                      for s in specs)
+    train = _data(args.data, out / "data" / "train", args.dataset, args.workers)
+    held = None if args.no_held_out else _data(args.held_out, out / "data" / "held_out", "held_out", args.workers)
+    machines = ", ".join(sorted(train["machine"].astype(str).unique()))
+    console.print(f"training: {len(train)} rows of {machines}" + ("" if held is None else
+                  f"; never trained on: {len(held)} rows of " + ", ".join(sorted(held["machine"].unique()))))
+    config = PipelineConfig(models=specs, reference=args.reference, seed=args.seed)
+    result = ScalingPipeline(config).run(DataBundle(train, held), out, progress=True, rerun=not args.no_rerun)
+    table = Table(title=f"held-out episodes (reference ER12 row {result.reference.name})")
+    for col in ("model", "R² δ1 dig", "R² δ1 all", "R² ln δ1", "F21 MAPE %", "mini |err| %", "fit s"):
+        table.add_column(col, justify="right")
+    for name, m in result.metrics.items():
+        table.add_row(name, f"{m.get('r2_dig', float('nan')):.4f}", f"{m['r2']:.4f}", f"{m['r2_log']:.4f}",
+                      f"{m['f21_mape_pct']:.2f}", f"{result.mini.mean_abs(name):.2f}", f"{m['fit_s']:.1f}")
+    console.print(table)
+    for name, per in result.held_out.items():
+        cells = "; ".join(f"{mach}: F21 MAPE {v['f21_mape_pct']:.2f} %"
+                          + (f", 90 % coverage {100 * v['coverage_90']:.1f} %" if "coverage_90" in v else "")
+                          for mach, v in per.items())
+        console.print(f"never trained on, {name}: {cells}")
+    console.print(f"models, metrics.json and provenance.json in {out}/")
+    return 0
