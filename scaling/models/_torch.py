@@ -5,12 +5,14 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import torch
 from torch import nn
 
 from scaling.factors import DeltaDataset
+from scaling.models.base import DeltaModel
 
 LossFn = Callable[[torch.Tensor, torch.Tensor, torch.Tensor | None], torch.Tensor]
 
@@ -185,3 +187,34 @@ def load_net_state(net: nn.Module, state: dict[str, torch.Tensor], prefix: str =
     sub = {k[len(prefix) + 1:]: v for k, v in state.items() if k.startswith(prefix + ".")}
     net.load_state_dict(sub)
     net.eval()
+
+
+class StandardisedNetModel(DeltaModel):
+    """Shared persistence of the torch δ1 models: a network ``net_`` plus input/output standardisers, saved as
+    safetensors tensors (``net.*``, ``x_scale.*``, ``y_scale.*``) and rebuilt from the input width."""
+
+    net_: nn.Module | None
+    x_scale_: Standardiser | None
+    y_scale_: Standardiser | None
+    seed: int
+
+    def _build(self, n_in: int) -> nn.Module:
+        raise NotImplementedError
+
+    def _extra(self) -> dict[str, Any]:
+        assert self.x_scale_ is not None
+        return {"n_in": int(self.x_scale_.mean.shape[0])}
+
+    def _load_extra(self, extra: dict[str, Any]) -> None:
+        with seeded(self.seed):
+            self.net_ = self._build(int(extra["n_in"]))
+
+    def _state(self) -> dict[str, torch.Tensor]:
+        assert self.net_ is not None and self.x_scale_ is not None and self.y_scale_ is not None
+        return {**net_state(self.net_), **self.x_scale_.state("x_scale"), **self.y_scale_.state("y_scale")}
+
+    def _load_state(self, state: dict[str, torch.Tensor]) -> None:
+        assert self.net_ is not None
+        load_net_state(self.net_, state)
+        self.x_scale_ = Standardiser.from_state(state, "x_scale")
+        self.y_scale_ = Standardiser.from_state(state, "y_scale")

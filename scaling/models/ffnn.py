@@ -9,10 +9,10 @@ import torch
 
 from scaling.factors import DeltaDataset
 from scaling.models import _torch as T
-from scaling.models.base import Data, DeltaModel
+from scaling.models.base import Data
 
 
-class FFNN(DeltaModel):
+class FFNN(T.StandardisedNetModel):
     """MLP on standardised features predicting standardised ln δ1; Adam, early stopping on held-out episodes.
 
     Args:
@@ -90,21 +90,3 @@ class FFNN(DeltaModel):
         trained = (f"best epoch {log.best_epoch + 1}/{log.epochs_run}, monitored loss {log.best_val_loss:.4g}"
                    if log is not None else "loaded from disk")
         return f"MLP {self.hidden_layers}×{self.units} ({n_par} parameters); {trained}"
-
-    def _extra(self) -> dict[str, Any]:
-        assert self.x_scale_ is not None
-        return {"n_in": int(self.x_scale_.mean.shape[0])}
-
-    def _load_extra(self, extra: dict[str, Any]) -> None:
-        with T.seeded(self.seed):
-            self.net_ = self._build(int(extra["n_in"]))
-
-    def _state(self) -> dict[str, torch.Tensor]:
-        assert self.net_ is not None and self.x_scale_ is not None and self.y_scale_ is not None
-        return {**T.net_state(self.net_), **self.x_scale_.state("x_scale"), **self.y_scale_.state("y_scale")}
-
-    def _load_state(self, state: dict[str, torch.Tensor]) -> None:
-        assert self.net_ is not None
-        T.load_net_state(self.net_, state)
-        self.x_scale_ = T.Standardiser.from_state(state, "x_scale")
-        self.y_scale_ = T.Standardiser.from_state(state, "y_scale")

@@ -16,7 +16,7 @@ from torch import nn
 
 from scaling.factors import DeltaDataset
 from scaling.models import _torch as T
-from scaling.models.base import Data, DeltaModel
+from scaling.models.base import Data
 
 
 class _GRUNet(nn.Module):
@@ -54,7 +54,7 @@ def _pad(x: np.ndarray, y: np.ndarray | None, wins: list[tuple[np.ndarray, int]]
     return torch.from_numpy(xb), torch.from_numpy(yb), torch.from_numpy(mask)
 
 
-class GRUModel(DeltaModel):
+class GRUModel(T.StandardisedNetModel):
     """GRU over time-ordered distortion features of each episode, predicting ln δ1 at every step.
 
     Args:
@@ -132,21 +132,3 @@ class GRUModel(DeltaModel):
         log = self.log_
         trained = f"best epoch {log.best_epoch + 1}/{log.epochs_run}" if log is not None else "loaded from disk"
         return f"GRU {self.num_layers}×{self.hidden_size}, window={self.window}; {trained}"
-
-    def _extra(self) -> dict[str, Any]:
-        assert self.x_scale_ is not None
-        return {"n_in": int(self.x_scale_.mean.shape[0])}
-
-    def _load_extra(self, extra: dict[str, Any]) -> None:
-        with T.seeded(self.seed):
-            self.net_ = self._build(int(extra["n_in"]))
-
-    def _state(self) -> dict[str, torch.Tensor]:
-        assert self.net_ is not None and self.x_scale_ is not None and self.y_scale_ is not None
-        return {**T.net_state(self.net_), **self.x_scale_.state("x_scale"), **self.y_scale_.state("y_scale")}
-
-    def _load_state(self, state: dict[str, torch.Tensor]) -> None:
-        assert self.net_ is not None
-        T.load_net_state(self.net_, state)
-        self.x_scale_ = T.Standardiser.from_state(state, "x_scale")
-        self.y_scale_ = T.Standardiser.from_state(state, "y_scale")
