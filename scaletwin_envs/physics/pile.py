@@ -60,18 +60,18 @@ class Pile:
         if idx.size == 0:
             return idx, np.zeros(0)
         xs = self.x[idx]
-        zs = np.full((len(polygon), idx.size), np.nan)
-        for k in range(len(polygon)):
+        z_lo = np.full(idx.size, np.inf)
+        z_hi = np.full(idx.size, -np.inf)
+        for k in range(len(polygon)):  # a vertical line meets a convex polygon's edges at its bottom and top
             (x0, z0), (x1, z1) = polygon[k], polygon[(k + 1) % len(polygon)]
             if abs(x1 - x0) < 1e-12:
                 continue
             t = (xs - x0) / (x1 - x0)
-            inside = (t >= 0.0) & (t <= 1.0)
-            zs[k, inside] = z0 + t[inside] * (z1 - z0)
-        counted = np.isfinite(zs).sum(axis=0) >= 2
-        z_lo = np.where(counted, np.nanmin(np.where(np.isfinite(zs), zs, np.inf), axis=0), 0.0)
-        z_hi = np.where(counted, np.nanmax(np.where(np.isfinite(zs), zs, -np.inf), axis=0), 0.0)
-        depth = (np.minimum(self.h[idx], z_hi) - z_lo).clip(min=0.0) * counted
+            z = np.where((t >= 0.0) & (t <= 1.0), z0 + t * (z1 - z0), np.nan)
+            z_lo = np.fmin(z_lo, z)
+            z_hi = np.fmax(z_hi, z)
+        inside = np.isfinite(z_lo) & np.isfinite(z_hi)
+        depth = np.where(inside, np.minimum(self.h[idx], z_hi) - np.where(inside, z_lo, 0.0), 0.0).clip(min=0.0)
         return idx, depth
 
     def remove(self, idx: np.ndarray, heights: np.ndarray) -> float:
