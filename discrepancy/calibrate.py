@@ -1,0 +1,88 @@
+"""The null: repeated perturbed twin runs give the noise model and the calibration of every test statistic.
+
+:func:`calibrate` does it around the nominal twin (before anything is known) or around a twin that already
+includes effects (to judge whether what is left after modelling them is still beyond noise); then the fitted
+parameters are perturbed too (relative :data:`PARAM_JITTER`), so that moments where the corrected twin itself is
+fragile (e.g. samples taken just after a delayed valve switch) are not mistaken for a residual.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from discrepancy.context import Context, huber
+from discrepancy.effects import Effect
+from discrepancy.locate import NullCalibration, window_stats
+from discrepancy.noise import NoiseModel, NullSpec, sensor_noise, twin_spread
+from discrepancy.plant import Plan, plan
+
+PARAM_JITTER = 0.02  # relative perturbation of fitted parameters in the null runs around a corrected twin
+
+
+@dataclass
+class NullModel:
+    """Noise model, window-statistic calibration and expected objective when nothing (more) differs."""
+
+    noise: NoiseModel
+    calibration: NullCalibration
+    cost: float
+    channel_noise: dict[str, float]
+
+
+def _jittered(effects: Sequence[Effect], rng: np.random.Generator) -> list[Effect]:
+    return [Effect(e.name, e.target, tuple((k, v * (1.0 + PARAM_JITTER * rng.standard_normal())) for k, v in e.values))
+            for e in effects]
+
+
+def _plans(ctx: Context, spec: NullSpec, effects: Sequence[Effect]) -> list[Plan]:
+    out = []
+    for k, base in enumerate(spec.plans(ctx.scales)):
+        rng = np.random.default_rng([spec.seed, k, 31])
+        out.append(plan(_jittered(effects, rng), ctx.replays.runner.twin.soil, base.physics) if effects else base)
+    return out
+
+
+def calibrate(ctx: Context, spec: NullSpec | None = None, effects: Sequence[Effect] = ()) -> NullModel:
+    """The null model of the twin with ``effects`` (nominal twin when empty), from ``spec.runs`` replays."""
+    spec = spec or NullSpec()
+    center_result = ctx.replays.get(list(effects))
+    center = ctx.matrix(center_result)
+    runs = ctx.replays.runner.run_many(ctx.real.commands, _plans(ctx, spec, effects), ctx.replays.seed)
+    ctx.replays.runs += len(runs)
+    dev = np.stack([ctx.matrix(r) - center for r in runs])
+    dev = np.where(np.isfinite(dev), dev, 0.0)
+    spread = np.array([ctx.scales.signal_scale[s] for s in ctx.names])
+    residual = np.nan_to_num(ctx.real_matrix - center)
+    sensor = sensor_noise(residual, spread)
+    noise = NoiseModel(ctx.names, sensor, twin_spread(dev))
+    wins = ctx.windows()
+    sizes = np.array([w.size for w in wins])
+    rng = np.random.default_rng([spec.seed, 7919])
+    null_stats, costs = [], []
+    for k in range(len(runs)):
+        fake = dev[k] + sensor * rng.standard_normal(dev[k].shape)  # scored exactly like the recording
+        # with the spread of all runs (a run's own rare jump left out would look like a huge residual and make
+        # every window of that signal blind)
+        z = fake / NoiseModel(ctx.names, sensor_noise(fake, spread), noise.twin).total
+        null_stats.append(window_stats(z, wins))
+        costs.append(float(np.sum(huber(z))))
+    return NullModel(noise, NullCalibration.fit(null_stats, sizes), float(np.mean(costs)),
+                     _channel_noise(ctx, center_result.signals))
+
+
+def _channel_noise(ctx: Context, twin: dict[str, np.ndarray]) -> dict[str, float]:
+    """Sensor noise of every channel real and twin share (compared and route-2 signals)."""
+    out = {}
+    for name, values in ctx.real.signals.items():
+        if name in twin and np.all(np.isfinite(twin[name])):
+            r = (values - twin[name])[:, None]
+            out[name] = float(sensor_noise(r, np.array([max(float(np.std(values)), 1e-12)]))[0])
+    return out
+
+
+def use(ctx: Context, null: NullModel) -> None:
+    """Make ``null`` the context's noise model and calibration."""
+    ctx.noise, ctx.calibration, ctx.null_cost = null.noise, null.calibration, null.cost

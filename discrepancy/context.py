@@ -1,0 +1,84 @@
+"""What every step of a diagnosis shares: the real episode, the twin's replays, the compared signals, the noise
+model and the objective (a robust sum of squared whitened residuals).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from discrepancy.effects import Effect, Scales
+from discrepancy.episode import COMPARED, EpisodeData, signal_spread
+from discrepancy.locate import NullCalibration, Window, windows
+from discrepancy.noise import NoiseModel
+from discrepancy.runner import CachedReplays
+from discrepancy.twin import SimResult
+
+HUBER = 3.0  # whitened residuals beyond this count linearly (robust to the twin's fragile moments)
+DIVERGED = 30.0  # whitened residual assigned to samples after a twin blow-up
+
+
+def huber(z: np.ndarray) -> np.ndarray:
+    """Huber's ρ (quadratic inside ±HUBER, linear outside), elementwise."""
+    a = np.abs(z)
+    return np.where(a <= HUBER, z * z, 2.0 * HUBER * a - HUBER * HUBER)
+
+
+@dataclass
+class Context:
+    """One real episode against its twin."""
+
+    real: EpisodeData
+    replays: CachedReplays
+    names: tuple[str, ...]
+    real_matrix: np.ndarray
+    nominal: SimResult
+    scales: Scales
+    noise: NoiseModel | None = None
+    calibration: NullCalibration | None = None
+    null_cost: float = 0.0  # expected objective when nothing differs
+
+    @classmethod
+    def build(cls, real: EpisodeData, replays: CachedReplays, scales_of: type[Scales] = Scales) -> Context:
+        nominal = replays.get(())
+        names = tuple(s for s in COMPARED if s in real.signals and s in nominal.signals
+                      and np.all(np.isfinite(nominal.signals[s])))
+        spread = signal_spread({s: nominal.signals[s] for s in names})
+        twin = replays.runner.twin
+        scales = scales_of.of(twin.loader, twin.soil, spread)
+        return cls(real, replays, names, real.matrix(names), nominal, scales)
+
+    @property
+    def time(self) -> np.ndarray:
+        return self.real.time
+
+    @property
+    def phases(self) -> np.ndarray:
+        """The real machine's phases (the twin's where the recording has none)."""
+        labels = np.asarray(self.real.phases, dtype=object)
+        return labels if any(str(p) for p in labels) else self.nominal.phases
+
+    def windows(self) -> list[Window]:
+        return windows(self.phases)
+
+    def matrix(self, result: SimResult) -> np.ndarray:
+        return np.stack([result.signals[s] for s in self.names], axis=1)
+
+    def simulate(self, effects: Sequence[Effect]) -> np.ndarray:
+        return self.matrix(self.replays.get(effects))
+
+    def simulate_many(self, effect_sets: Sequence[Sequence[Effect]]) -> list[np.ndarray]:
+        return [self.matrix(r) for r in self.replays.get_many(effect_sets)]
+
+    def z(self, twin_matrix: np.ndarray, real_matrix: np.ndarray | None = None) -> np.ndarray:
+        """Whitened residual real − twin; samples after a twin blow-up get a large value."""
+        assert self.noise is not None, "noise model not estimated yet"
+        real = self.real_matrix if real_matrix is None else real_matrix
+        z = self.noise.whiten(real - twin_matrix)
+        return np.where(np.isfinite(z), z, DIVERGED)
+
+    def cost(self, twin_matrix: np.ndarray) -> float:
+        """Objective: Σ huber(z) over all samples and compared signals."""
+        return float(np.sum(huber(self.z(twin_matrix))))

@@ -1,0 +1,172 @@
+"""The twin: which machine, soil and env settings it is (:class:`TwinSpec`), and replaying a recording's commands
+on it with any planted effects (:class:`Simulator`).
+
+The replay is open loop: the twin receives exactly the commands of the real machine, step by step, from the
+recorded reset seed, and runs for as many steps as the recording has (it does not stop where the twin's own
+cycle would end). Envs are built once per model structure and reused.
+"""
+
+from __future__ import annotations
+
+import inspect
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from discrepancy.episode import COMPARED, ROUTE2, EpisodeData, RecordingError
+from discrepancy.plant import Plan, apply_sensors
+from discrepancy.twin_env import Structure, TwinDigEnv
+from scaletwin_envs.envs.wheel_loader_dig import WheelLoaderDigEnv
+from scaletwin_envs.specs import LoaderSpec, SoilSpec, make_loader, make_soil
+
+#: Env arguments that do not change the physics of a replay (and are not passed on).
+_IGNORED = {"render_mode", "width", "height", "two_route_check", "scale", "law", "distortion", "soil"}
+DT_TOLERANCE = 0.02  # relative mismatch of the recording's sampling step and the twin's control step
+
+
+@dataclass(frozen=True)
+class TwinSpec:
+    """The nominal twin: machine, soil, env arguments (JSON values) and the reset seed."""
+
+    loader: LoaderSpec
+    soil: SoilSpec
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
+    seed: int = 0
+
+    @classmethod
+    def from_episode(cls, ep: EpisodeData) -> TwinSpec:
+        """The twin described by a recording's provenance.
+
+        Raises:
+            RecordingError: the recording has no machine spec (pass a twin explicitly).
+        """
+        if ep.machine is None:
+            raise RecordingError(f"{ep.name}: the provenance has no machine; give the twin (--twin SPEC)")
+        return cls(ep.machine, ep.soil or make_soil("gravel"), _physics_kwargs(ep.env_kwargs),
+                   ep.seed if ep.seed is not None else 0)
+
+    @classmethod
+    def parse(cls, text: str, ep: EpisodeData | None = None) -> TwinSpec:
+        """A twin from ``text``: a JSON file ``{"scale", "soil", "env_kwargs", "seed"}`` (``scale`` a preset, a
+        float or a LoaderSpec dict; ``soil`` a name or a SoilSpec dict) or ``SCALE[:SOIL[:SEED]]`` (e.g.
+        ``er12:gravel:3``). Missing fields come from the recording's provenance (seed, env arguments); the reset
+        seed fixes the twin's start pose and pile, so it should be the recording's."""
+        path = Path(text)
+        if path.suffix == ".json" or path.is_file():
+            try:
+                doc = json.loads(path.read_text())
+            except (OSError, json.JSONDecodeError) as exc:
+                raise ValueError(f"cannot read twin spec {text}: {exc}") from exc
+        else:
+            scale, _, rest = text.partition(":")
+            soil, _, seed = rest.partition(":")
+            doc = {"scale": scale, "soil": soil or None}
+            if seed:
+                try:
+                    doc["seed"] = int(seed)
+                except ValueError as exc:
+                    raise ValueError(f"twin spec {text!r}: the seed must be an integer") from exc
+        return cls.from_dict(doc, ep)
+
+    @classmethod
+    def from_dict(cls, doc: dict[str, Any], ep: EpisodeData | None = None) -> TwinSpec:
+        scale = doc.get("scale")
+        loader = LoaderSpec.from_dict(scale) if isinstance(scale, dict) else make_loader(_scale(scale))
+        soil_doc = doc.get("soil")
+        soil = (SoilSpec(**soil_doc) if isinstance(soil_doc, dict) else make_soil(soil_doc) if soil_doc
+                else (ep.soil if ep is not None and ep.soil else make_soil("gravel")))
+        kwargs = _physics_kwargs(doc.get("env_kwargs", ep.env_kwargs if ep is not None else {}))
+        seed = doc.get("seed", ep.seed if ep is not None and ep.seed is not None else 0)
+        return cls(loader, soil, kwargs, int(seed))
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"scale": self.loader.to_dict(), "soil": self.soil.to_dict(), "env_kwargs": dict(self.env_kwargs),
+                "seed": self.seed}
+
+
+def _scale(value: Any) -> float | str:
+    if value is None:
+        raise ValueError("the twin spec needs a scale (preset name, float or LoaderSpec dict)")
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return str(value)
+
+
+def _physics_kwargs(kwargs: dict[str, Any]) -> dict[str, Any]:
+    accepted = set(inspect.signature(WheelLoaderDigEnv.__init__).parameters) - {"self"}
+    return {k: v for k, v in kwargs.items() if k in accepted and k not in _IGNORED}
+
+
+@dataclass
+class SimResult:
+    """A replay: SI signals by name (steps,), phases, and the first physics error (None when it ran through)."""
+
+    signals: dict[str, np.ndarray]
+    phases: np.ndarray
+    error: str | None = None
+
+
+class Simulator:
+    """Replays commands on a twin with planted effects; one env per model structure, built on first use."""
+
+    def __init__(self, twin: TwinSpec, two_routes: bool = False) -> None:
+        self.twin, self.two_routes = twin, two_routes
+        self._envs: dict[tuple[Structure, bool], TwinDigEnv] = {}
+        self.runs = 0
+
+    def env(self, structure: Structure, two_routes: bool | None = None) -> TwinDigEnv:
+        key = (structure, self.two_routes if two_routes is None else two_routes)
+        if key not in self._envs:
+            self._envs[key] = TwinDigEnv(structure=structure, scale=self.twin.loader, soil=self.twin.soil,
+                                         two_route_check=key[1], **self.twin.env_kwargs)
+        return self._envs[key]
+
+    @property
+    def control_dt(self) -> float:
+        return float(self.env(Structure()).dt)
+
+    def run(self, commands: np.ndarray, plan: Plan | None = None, two_routes: bool | None = None) -> SimResult:
+        """Replay ``commands`` (steps, 3) with ``plan`` from the twin's seed; signals after sensor models."""
+        plan = plan or Plan()
+        env = self.env(plan.structure, two_routes)
+        env.set_physics(plan.physics)
+        env.reset(seed=self.twin.seed)
+        self.runs += 1
+        rows: list[dict[str, float]] = []
+        phases: list[str] = []
+        error = None
+        for a in np.asarray(commands, dtype=np.float32):
+            *_, info = env.step(a)
+            if info.get("sim_error"):
+                error = str(info["sim_error"])
+                break
+            rows.append(info["signals"])
+            phases.append(info["phase"])
+        n = len(commands)
+        names = [k for k in (*COMPARED, *ROUTE2) if rows and k in rows[0]]
+        signals = {k: _padded([r[k] for r in rows], n) for k in names}
+        time = env.dt * np.arange(1, n + 1)
+        signals = apply_sensors(signals, time, plan.sensors) if plan.sensors else signals
+        return SimResult(signals, np.asarray(phases + ["error"] * (n - len(phases)), dtype=object), error)
+
+
+def _padded(values: list[float], n: int) -> np.ndarray:
+    out = np.full(n, np.nan)
+    out[: len(values)] = values
+    return out
+
+
+def check_compatible(ep: EpisodeData, sim: Simulator) -> None:
+    """The recording must be sampled at the twin's control step.
+
+    Raises:
+        RecordingError: a sampling step that differs from the twin's (a recording of another machine or rate).
+    """
+    dt = sim.control_dt
+    if abs(ep.dt - dt) > DT_TOLERANCE * dt:
+        raise RecordingError(f"{ep.name}: sampled every {ep.dt:.4g} s but the twin "
+                             f"({sim.twin.loader.name}) steps every {dt:.4g} s; wrong machine or resampled data?")

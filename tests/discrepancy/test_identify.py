@@ -1,0 +1,60 @@
+"""Each catalogue effect planted alone at a clear magnitude is named with the right target; a null names nothing.
+
+The catalogue is restricted to the planted effect's family and close rivals (and the fast options of conftest)
+so the suite stays fast; ``test_full_catalogue`` (slow) runs the whole catalogue.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from discrepancy import DiagnoseOptions, Effect, diagnose
+
+#: effect → (target, parameters in Π, catalogue the search may choose from)
+CLEAR = {
+    "coulomb_friction": ("bucket_hinge", {"friction": 0.008},
+                         ("coulomb_friction[bucket_hinge]", "coulomb_friction[tilt_cylinder]",
+                          "viscous_damping[bucket_hinge]")),
+    "viscous_damping": ("lift_cylinder", {"damping": 0.04},
+                        ("viscous_damping[lift_cylinder]", "viscous_damping[boom_hinge]",
+                         "coulomb_friction[lift_cylinder]")),
+    "backlash": ("pin_21", {"clearance": 0.003}, ("backlash", "hydraulic_compliance[tilt_cylinder]")),
+    "actuator_delay": ("tilt_cylinder", {"delay": 0.25}, ("actuator_delay", "viscous_damping[tilt_cylinder]")),
+    "hydraulic_compliance": ("lift_cylinder", {"compliance": 0.01},
+                             ("hydraulic_compliance", "viscous_damping[lift_cylinder]")),
+    "payload_mass_error": ("payload", {"mass_error": 0.2}, ("payload_mass_error", "soil_adhesion")),
+    "payload_com_offset": ("payload", {"dx": 0.04, "dz": -0.03}, ("payload_com_offset", "payload_mass_error")),
+    "soil_cohesion": ("soil", {"cohesion": 0.05}, ("soil_cohesion", "soil_adhesion")),
+    "soil_adhesion": ("soil", {"adhesion": 0.06}, ("soil_adhesion", "soil_cohesion")),
+    "sensor_bias": ("F31", {"bias": 0.2}, ("sensor_bias", "sensor_gain", "coulomb_friction[bucket_hinge]")),
+    "sensor_gain": ("Pf_lift", {"gain_error": 0.1}, ("sensor_gain", "sensor_bias", "viscous_damping[lift_cylinder]")),
+    "sensor_delay": ("boom_angle", {"delay": 0.3}, ("sensor_delay", "sensor_bias", "coulomb_friction[boom_hinge]")),
+}
+
+
+@pytest.mark.parametrize("name", list(CLEAR))
+def test_effect_is_named(name: str, scales, diagnosed) -> None:
+    target, pis, candidates = CLEAR[name]
+    effect = Effect.from_pi(name, target, pis, scales)
+    d = diagnosed([effect], candidates)
+    assert d.effects, f"nothing named for {effect.label()} ({len(d.located)} located windows)"
+    top = d.effects[0]
+    assert top.effect == name, [e.effect for e in d.effects]
+    expected = None if effect.spec.target_kind in ("payload", "soil") else target
+    assert top.target == expected
+    assert all(lo <= hi for lo, hi in top.interval.values())
+
+
+def test_null_names_nothing(planted, twin) -> None:
+    d = diagnose(planted([]).noisy, twin)  # the full catalogue: nothing is located, so nothing runs
+    assert d.effects == [] and d.located == []
+    assert d.comparison.after == d.comparison.before
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", list(CLEAR))
+def test_full_catalogue(name: str, scales, planted, twin) -> None:
+    target, pis, _ = CLEAR[name]
+    effect = Effect.from_pi(name, target, pis, scales)
+    d = diagnose(planted([effect]).noisy, twin, options=DiagnoseOptions())
+    assert d.effects and d.effects[0].effect == name
