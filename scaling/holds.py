@@ -19,7 +19,7 @@ import numpy as np
 
 from scaletwin_envs.envs.wheel_loader_dig import OBS_INDEX
 from scaletwin_envs.physics.kinematics import LinkageUnreachable, solve_pose
-from scaletwin_envs.policies import ScriptedDigPolicy
+from scaletwin_envs.policies import DigPolicy, ScriptedDigPolicy
 from scaletwin_envs.policies.scripted import Stage
 from scaletwin_envs.specs import make_loader
 
@@ -33,8 +33,8 @@ PENETRATION_RANGE = (0.12, 0.5)
 
 
 @dataclass
-class StaticHoldPolicy:
-    """Dig, then reach and hold each of ``poses``; ``predict`` mirrors Stable-Baselines3's signature.
+class StaticHoldPolicy(DigPolicy):
+    """Dig, then reach and hold each of ``poses`` (callable, with Stable-Baselines3's ``predict``).
 
     Attributes:
         poses: (boom angle, bucket pitch) targets, rad.
@@ -61,13 +61,6 @@ class StaticHoldPolicy:
     def reset(self) -> None:
         self.dig = ScriptedDigPolicy(penetration=self.penetration)
         self._pose, self._moving, self._count = 0, True, 0
-
-    def __call__(self, obs: np.ndarray) -> np.ndarray:
-        return self.act(obs)
-
-    def predict(self, obs: np.ndarray, state: object = None, episode_start: object = None,
-                deterministic: bool = True) -> tuple[np.ndarray, None]:
-        return self.act(obs), None
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         action = self.dig.act(obs)
