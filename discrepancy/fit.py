@@ -97,16 +97,17 @@ def _solve(jac: np.ndarray, w: np.ndarray, z: np.ndarray) -> np.ndarray:
     return np.linalg.solve(a + lam * np.eye(len(a)), -jac.T @ (w * z))
 
 
-def scan(ctx: Context, effects: Sequence[Effect], index: int) -> tuple[list[Effect], float]:
-    """Coordinate scans of the parameters of ``effects[index]`` at a few relative offsets, then finer ones around
-    the best: the objective has jumps (fragile moments) that trap a purely local method a few per cent off."""
+def scan(ctx: Context, effects: Sequence[Effect], first: int) -> tuple[list[Effect], float]:
+    """Coordinate scans of every parameter (those of ``effects[first]`` first) at a few relative offsets, then
+    finer ones around the best: the objective has jumps (fragile moments) that trap a purely local method a few
+    per cent off, and effects found earlier may have absorbed part of a later one."""
     effects = list(effects)
     coords = _coordinates(effects)
     u = _to_u(effects, coords, ctx)
     best = ctx.cost(ctx.simulate(effects))
-    for i, c in enumerate(coords):
-        if c.effect != index:
-            continue
+    order = sorted(range(len(coords)), key=lambda i: coords[i].effect != first)
+    for i in order:
+        c = coords[i]
         for offsets in (SCAN, FINE_SCAN):
             scale = 1.0 if c.log else max(abs(u[i]), 1e-3)
             points = [u + o * scale * np.eye(len(u))[i] for o in offsets]

@@ -6,7 +6,7 @@ are refined (:mod:`discrepancy.search`); sensor faults are fitted in closed form
 linkage redundancy (:mod:`discrepancy.redundancy`) leaves open to a sensor. The candidate that lowers the robust
 objective most wins the round if the gain is clearly above chance. After each round the corrected residual is
 located again: nothing left means explained. The catalogue does not explain the residual (``unexplained``) when
-the first winner removes less than half of the excess, or when no further catalogue effect helps enough.
+the first winner removes less than 30 % of the excess, or when no further catalogue effect helps enough.
 Alternatives that fit nearly as well are reported as ``confounded_with``; ``confidence`` is the winner's
 likelihood weight among all trials.
 """
@@ -23,16 +23,14 @@ from discrepancy.effects import Effect
 from discrepancy.fit import polish, scan
 from discrepancy.locate import LocateResult, locate
 from discrepancy.noise import NullSpec
-from discrepancy.search import KINEMATIC, Candidate, make_search, physics_candidates, run_searches
+from discrepancy.screen import REFINE, Trial, physics_trials
 from discrepancy.sensors import sensor_trials
 
-REFINE = 3  # candidates refined per round
 FINALISTS = 2  # best trials scanned and polished (with the effects accepted so far) before the winner is chosen
-LAG_GAIN = 0.75  # a delay candidate is refined too when it removes a quarter of the kinematic residual
 MAX_EFFECTS = 3
 POLISH = 2  # Gauss–Newton steps on all accepted effects before judging what is left
 MIN_GAIN = 25.0  # objective decrease a winner must bring (whitened units: far beyond a chance fit)
-MIN_FIRST = 0.5  # the first effect must remove at least this fraction of the excess residual
+MIN_FIRST = 0.3  # the first effect must remove at least this fraction of the excess residual
 MIN_NEXT = 0.3  # each further effect at least this fraction of what is left
 MIN_CLEARED = 0.5  # ... or clear this fraction of the windows still located
 EXPLAINED = 0.9  # a model removing this much of the excess, with only a few windows left, explains it
@@ -45,25 +43,19 @@ STRONG_COUNT, STRONG_SIZE = 3, 3.0  # fewer, fainter located windows may be chan
 class IdentifyOptions:
     """Knobs of the selection: at most ``max_effects`` effects, ``refine`` candidates refined per round, the
     catalogue restricted to ``candidates`` (effect names or labels such as ``coulomb_friction[boom_hinge]``;
-    None: all), the null spec of the re-calibration after each round, Gauss–Newton steps before judging."""
+    None: all), the null spec of the re-calibration after each round, Gauss–Newton steps before judging, and
+    how many close rivals are refitted before the winner of a round is chosen."""
 
     max_effects: int = MAX_EFFECTS
     refine: int = REFINE
     candidates: tuple[str, ...] | None = None
     null: NullSpec | None = None
     polish: int = POLISH
+    finalists: int = FINALISTS
 
     def allows(self, name: str, target: str | None) -> bool:
         label = f"{name}[{target}]" if target else name
         return self.candidates is None or name in self.candidates or label in self.candidates
-
-
-@dataclass
-class Trial:
-    """A fitted candidate: the effect (SI) and the objective of the twin with it."""
-
-    effect: Effect
-    cost: float
 
 
 @dataclass
@@ -91,70 +83,6 @@ class Identification:
     final_cost: float = 0.0
 
 
-def _evaluate(ctx: Context, base: list[Effect], batch: list[tuple[Candidate, np.ndarray]]
-              ) -> list[tuple[float, np.ndarray]]:
-    mats = ctx.simulate_many([[*base, c.effect(u, ctx.scales)] for c, u in batch])
-    return [(float(np.sum(h)), z) for h, z in (_huber_z(ctx, m) for m in mats)]
-
-
-def _huber_z(ctx: Context, m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    z = ctx.z(m)
-    return huber(z), z
-
-
-def _screen(ctx: Context, base: list[Effect], cands: list[Candidate]
-            ) -> dict[Candidate, list[tuple[np.ndarray, float, np.ndarray]]]:
-    """Objective and residual of every candidate at its grid points on top of ``base``.
-
-    With effects already in the base, the candidates' replays from the first round are reused by superposition
-    (twin + base effect change + candidate change), which costs no simulation."""
-    batch = [(c, u) for c in cands for u in c.grid()]
-    if not base:
-        results = _evaluate(ctx, base, batch)
-    else:
-        delta = ctx.simulate(base) - ctx.simulate([])
-        mats = ctx.simulate_many([[c.effect(u, ctx.scales)] for c, u in batch])
-        results = [(float(np.sum(h)), z) for h, z in (_huber_z(ctx, m + delta) for m in mats)]
-    seen: dict[Candidate, list[tuple[np.ndarray, float, np.ndarray]]] = {c: [] for c in cands}
-    for (c, u), (cost, z) in zip(batch, results, strict=True):
-        seen[c].append((u, cost, z))
-    return seen
-
-
-def _physics_trials(ctx: Context, base: list[Effect], opts: IdentifyOptions) -> list[Trial]:
-    taken = {(e.name, e.target) for e in base}
-    cands = [c for c in physics_candidates() if (c.name, c.target) not in taken and opts.allows(c.name, c.target)]
-    if not cands:
-        return []
-    seen = _screen(ctx, base, cands)
-    ranked = sorted(cands, key=lambda c: min(s[1] for s in seen[c]))
-    n = opts.refine
-    chosen = ranked[:n] + [c for c in ranked[n:] if c.name == "actuator_delay" and _lags(ctx, base, seen[c])]
-    if base:  # exact replays for the candidates that go on
-        batch = [(c, u) for c in chosen for u in c.grid()]
-        for (c, u), res in zip(batch, _evaluate(ctx, base, batch), strict=True):
-            seen[c] = [s for s in seen[c] if not np.array_equal(s[0], u)] + [(u, *res)]
-    searches = [make_search(c, ctx.scales, seen[c], ctx.names, ctx.real.dt) for c in chosen]
-    run_searches(searches, lambda b: _evaluate(ctx, base, b))
-    vertices = [(s.candidate, s.vertex()) for s in searches]
-    for (c, u), (cost, _) in zip(vertices, _evaluate(ctx, base, vertices), strict=True):
-        seen[c].append((u, cost, np.empty(0)))
-    trials = []
-    for c in cands:
-        u, cost, _ = min(seen[c], key=lambda s: s[1])
-        trials.append(Trial(c.effect(u, ctx.scales), cost))
-    return trials
-
-
-def _lags(ctx: Context, base: list[Effect], seen: list[tuple[np.ndarray, float, np.ndarray]]) -> bool:
-    """Does a delay at some grid point take a good part of the kinematic residual away?"""
-    idx = [ctx.names.index(k) for k in KINEMATIC if k in ctx.names]
-    if len(idx) < len(KINEMATIC):
-        return False
-    before = float(np.sum(huber(ctx.z(ctx.simulate(base))[:, idx])))
-    return min(float(np.sum(huber(z[:, idx]))) for _, _, z in seen) < LAG_GAIN * before
-
-
 def _sensor_trials(ctx: Context, base: list[Effect], suspects: set[str], opts: IdentifyOptions) -> list[Trial]:
     taken = {e.target for e in base if e.spec.plant == "sensor"}
     matrix = ctx.simulate(base)
@@ -165,12 +93,13 @@ def _sensor_trials(ctx: Context, base: list[Effect], suspects: set[str], opts: I
 def _round(ctx: Context, base: list[Effect], base_cost: float, located: LocateResult, suspects: set[str],
            opts: IdentifyOptions) -> Round | None:
     signals = {loc.signal for loc in located.located}
-    trials = _physics_trials(ctx, base, opts) + _sensor_trials(ctx, base, suspects & signals, opts)
+    trials = physics_trials(ctx, base, opts.allows, opts.refine)
+    trials += _sensor_trials(ctx, base, suspects & signals, opts)
     if not trials:
         return None
     trials.sort(key=lambda t: t.cost)
     models = {}
-    for t in trials[:FINALISTS]:  # close rivals are refined alike before one is chosen
+    for t in _finalists(trials, opts.finalists):  # close rivals are refitted alike before one is chosen
         model, _ = scan(ctx, [*base, t.effect], len(base))
         model, cost, _, _ = polish(ctx, model, opts.polish)
         t.effect, t.cost = model[-1], cost
@@ -180,9 +109,20 @@ def _round(ctx: Context, base: list[Effect], base_cost: float, located: LocateRe
     margin = max(CONFOUND_ABS, CONFOUND_REL * (base_cost - win.cost))
     confounded = [t.effect.label() for t in trials[1:] if t.cost - win.cost <= margin]
     weights = np.exp(-0.5 * np.minimum(np.array([t.cost - win.cost for t in trials]), 700.0))
-    excess = max(base_cost - ctx.null_cost, 1e-9)
+    excess = max(base_cost - ctx.null_cost, MIN_GAIN)
     return Round(base_cost, trials, win, confounded, float(1.0 / weights.sum()), (base_cost - win.cost) / excess,
                  models.get(win.effect.label(), [*base, win.effect]))
+
+
+def _finalists(trials: list[Trial], n: int = FINALISTS) -> list[Trial]:
+    """The best :data:`FINALISTS` trials, the :data:`FINALISTS` physics trials screened best (with the accepted
+    effects free to shrink) and the best sensor trial: an effect found earlier may have absorbed part of a later
+    one, which only shows once they are refitted together."""
+    physics = sorted((t for t in trials if t.effect.spec.plant != "sensor"), key=lambda t: t.screen)
+    sensors = [t for t in trials if t.effect.spec.plant == "sensor"]
+    out = trials[:n]
+    out += [t for t in physics[:n] + sensors[:1] if t not in out]
+    return out
 
 
 def identify(ctx: Context, located: LocateResult, suspects: set[str], opts: IdentifyOptions | None = None
@@ -212,7 +152,7 @@ def identify(ctx: Context, located: LocateResult, suspects: set[str], opts: Iden
         current = after
         if not after.located:
             return out
-        tolerable = judge.removed >= EXPLAINED and len(after.located) <= _tolerated(located)
+        tolerable = judge.removed >= EXPLAINED and (len(after.located) <= _tolerated(located) or not _strong(after))
     # a few faint windows that no catalogue effect explains are put down to chance, not to missing physics
     out.unexplained = not tolerable and (bool(out.effects) or _strong(located))
     if not out.unexplained:  # the last round found nothing worth adding: its trials are not an accepted effect
@@ -226,7 +166,7 @@ def _accepts(judge: _Judgement, further: bool, windows_before: int, windows_afte
     if not further:
         return judge.gain >= MIN_FIRST
     cleared = 1.0 - windows_after / max(windows_before, 1)
-    return judge.gain >= MIN_NEXT or cleared >= MIN_CLEARED
+    return judge.gain >= MIN_NEXT or (cleared >= MIN_CLEARED and judge.gain >= MIN_NEXT / 3)
 
 
 def _strong(located: LocateResult) -> bool:

@@ -18,11 +18,12 @@ from discrepancy.context import Context
 from discrepancy.effects import UNEXPLAINED, Effect
 from discrepancy.episode import EpisodeData, RecordingError, from_recording, load_episode
 from discrepancy.fit import GN_ITERATIONS, Comparison, FitResult, compare, fit
-from discrepancy.identify import MAX_EFFECTS, POLISH, REFINE, Identification, IdentifyOptions, identify
+from discrepancy.identify import FINALISTS, MAX_EFFECTS, POLISH, Identification, IdentifyOptions, identify
 from discrepancy.locate import ALPHA, Located, LocateResult, locate
 from discrepancy.noise import NoiseModel, NullSpec
 from discrepancy.redundancy import Check, check_all, sensor_suspects
 from discrepancy.runner import CachedReplays, Runner, make_runner
+from discrepancy.screen import REFINE
 from discrepancy.twin import SimResult, Simulator, TwinSpec, check_compatible
 from scaletwin_envs.recording import Recording
 
@@ -42,6 +43,7 @@ class DiagnoseOptions:
     candidates: tuple[str, ...] | None = None  # restrict the catalogue (effect names or labels); None: all
     polish: int = POLISH  # Gauss–Newton steps before judging each round
     gn_iterations: int = GN_ITERATIONS  # Gauss–Newton steps of the final fit
+    finalists: int = FINALISTS  # rivals refitted before a round's winner is chosen
 
 
 @dataclass
@@ -162,7 +164,7 @@ def _run(train: EpisodeData, held: list[EpisodeData], spec: TwinSpec, route2: Si
         suspects = sensor_suspects(checks, {loc.signal for loc in found.located})
     with timer.step("identify"):
         ident = identify(ctx, found, suspects, IdentifyOptions(opts.max_effects, opts.refine, opts.candidates,
-                                                               opts.null, opts.polish))
+                                                               opts.null, opts.polish, opts.finalists))
     named = [] if ident.unexplained else ident.effects
     with timer.step("fit"):
         result = fit(ctx, named, opts.seed, opts.gn_iterations) if named else None
