@@ -164,7 +164,7 @@ CATALOGUE: dict[str, EffectSpec] = {e.name: e for e in (
     EffectSpec("hydraulic_compliance", "cylinder", CYLINDER_JOINTS,
                "compressible oil column (bulk modulus, hose volume): a spring k = beta A^2 / V between the valve "
                "flow and the rod; lag and ringing between cylinder force and motion", "structure",
-               (_p("compliance", "m/N", "C F_relief/stroke", (1e-4, 0.1), (0.004, 0.016)),),
+               (_p("compliance", "m/N", "C F_relief/stroke", (1e-4, 0.1), (0.003, 0.006, 0.012, 0.024)),),
                ("Pf_lift", "Pf_tilt", "lift_speed", "tilt_speed", "w1", "alpha1"), ALL_PHASES),
     EffectSpec("payload_mass_error", "payload", ("payload",),
                "the load is heavier or lighter than volume x density: pin-force residual proportional to (g + a) "

@@ -19,6 +19,7 @@ from discrepancy.context import HUBER, Context
 from discrepancy.effects import Effect
 from discrepancy.episode import EpisodeData
 from discrepancy.runner import CachedReplays
+from discrepancy.search import Candidate
 
 GN_ITERATIONS = 3
 BOOTSTRAP = 400
@@ -32,6 +33,7 @@ FINE_SCAN = (-0.004, 0.004)
 #: Relative resolution of a fitted parameter: the objective is rough on this scale (twin moments that jump), so an
 #: interval is never narrower than ± this (in log Π, or relative for signed parameters).
 RESOLUTION = 0.02
+TRUST = 0.7  # largest Gauss–Newton step (log Π, or relative for signed parameters)
 
 
 @dataclass(frozen=True)
@@ -74,6 +76,24 @@ def _from_u(u: np.ndarray, effects: Sequence[Effect], coords: list[Coordinate], 
     return [Effect.from_pi(e.name, e.target, p, ctx.scales) for e, p in zip(effects, pis, strict=True)]
 
 
+def _bounds(effects: Sequence[Effect], coords: list[Coordinate], ctx: Context) -> np.ndarray:
+    """(coordinates, 2) admissible range in u (the catalogue's bounds; a soil term may not go below zero)."""
+    rows = []
+    for c in coords:
+        e = effects[c.effect]
+        k = [p.name for p in e.spec.params].index(c.param)
+        lo, hi = Candidate(e.name, e.target).bounds(ctx.scales)[k] if e.spec.params[k].log == c.log else (
+            e.spec.params[k].bounds)
+        rows.append((lo, hi))
+    return np.array(rows, dtype=float)
+
+
+def _trust(delta: np.ndarray, u: np.ndarray, coords: list[Coordinate]) -> np.ndarray:
+    """Limit a step to ±TRUST in log Π, or ±TRUST × max(|u|, 0.01) for signed parameters."""
+    cap = np.array([TRUST if c.log else TRUST * max(abs(v), 0.01) for c, v in zip(coords, u, strict=True)])
+    return np.clip(np.nan_to_num(delta), -cap, cap)
+
+
 def _step(c: Coordinate, u: float, effects: Sequence[Effect]) -> float:
     name = effects[c.effect].name
     if c.log:
@@ -105,12 +125,13 @@ def scan(ctx: Context, effects: Sequence[Effect], first: int) -> tuple[list[Effe
     coords = _coordinates(effects)
     u = _to_u(effects, coords, ctx)
     best = ctx.cost(ctx.simulate(effects))
+    bounds = _bounds(effects, coords, ctx)
     order = sorted(range(len(coords)), key=lambda i: coords[i].effect != first)
     for i in order:
         c = coords[i]
         for offsets in (SCAN, FINE_SCAN):
             scale = 1.0 if c.log else max(abs(u[i]), 1e-3)
-            points = [u + o * scale * np.eye(len(u))[i] for o in offsets]
+            points = [np.clip(u + o * scale * np.eye(len(u))[i], bounds[:, 0], bounds[:, 1]) for o in offsets]
             costs = [ctx.cost(m) for m in ctx.simulate_many([_from_u(p, effects, coords, ctx) for p in points])]
             k = int(np.argmin(costs))
             if costs[k] < best:
@@ -128,10 +149,11 @@ def polish(ctx: Context, effects: Sequence[Effect], iterations: int = GN_ITERATI
     best = ctx.cost(ctx.simulate(effects))
     accepted = 0
     last = np.zeros_like(u)
+    bounds = _bounds(effects, coords, ctx)
     for _ in range(iterations):
         z, jac, w = _jacobian(ctx, effects, coords, u)
-        delta = _solve(jac, w, z)
-        trials = [u + f * delta for f in (1.0, 0.5, 0.25)]
+        delta = _trust(_solve(jac, w, z), u, coords)
+        trials = [np.clip(u + f * delta, bounds[:, 0], bounds[:, 1]) for f in (1.0, 0.5, 0.25)]
         costs = [ctx.cost(m) for m in ctx.simulate_many([_from_u(t, effects, coords, ctx) for t in trials])]
         k = int(np.argmin(costs))
         last = delta

@@ -52,7 +52,7 @@ class Candidate:
             lo, hi = p.bounds
             if self.name in ("soil_cohesion", "soil_adhesion"):  # the soil's own term cannot go below zero
                 lo = -getattr(scales, self.name.removeprefix("soil_")) / pi_unit(self.name, p.name, None, scales)
-            rows.append((np.log(lo), np.log(hi)) if p.log else (lo, hi))
+            rows.append((np.log(max(lo, 1e-12)), np.log(hi)) if p.log else (lo, hi))
         return np.array(rows, dtype=float)
 
     def grid(self) -> list[np.ndarray]:

@@ -30,13 +30,18 @@ def run(args: argparse.Namespace) -> int:
 
     if args.cases < 1:
         raise ValueError(f"--cases must be >= 1, got {args.cases}")
-    lines: list[str] = []
+    jsonl = Path(args.jsonl) if args.jsonl else None
+    if jsonl is not None:
+        jsonl.parent.mkdir(parents=True, exist_ok=True)
+        jsonl.write_text("")
 
     def progress(result: dict[str, Any]) -> None:
         named = ", ".join(n for n, _ in result["named"]) or "-"
         print(f"case {result['index']:3d} {result['kind']:6s} planted {result['planted'] or result['ooc'] or '-'} "
               f"-> {named} ({result['diagnosis_s']:.1f} s)", flush=True)
-        lines.append(json.dumps(result))
+        if jsonl is not None:  # written as each case finishes, so an interrupted run keeps what it did
+            with jsonl.open("a") as f:
+                f.write(json.dumps(result) + "\n")
 
     results = run_bench(args.cases, args.seed, args.workers, progress)
     header = (f"# Discrepancy benchmark ({dt.date.today()}, {args.cases} cases, seed {args.seed}, "
@@ -46,6 +51,4 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(text)
-    if args.jsonl:
-        Path(args.jsonl).write_text("\n".join(lines) + "\n")
     return 0

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Sequence
 
 import pytest
@@ -13,7 +14,7 @@ from scaletwin_envs.specs import make_loader, make_soil
 
 #: Fewer null runs, two refined candidates, one Gauss–Newton step while naming and none in the final fit: the tests
 #: stay fast, the pipeline is the same.
-FAST = DiagnoseOptions(null=NullSpec(runs=3), refine=2, polish=1, gn_iterations=0)
+FAST = DiagnoseOptions(null=NullSpec(runs=3), refine=2, polish=1, gn_iterations=0, finalists=1)
 
 
 @pytest.fixture(scope="session")
@@ -47,8 +48,7 @@ def diagnosed(twin: TwinSpec, planted) -> Callable[..., Diagnosis]:
     def get(effects: Sequence[Effect], candidates: tuple[str, ...] | None = None) -> Diagnosis:
         key = (tuple(effects), candidates)
         if key not in cache:
-            opts = DiagnoseOptions(null=FAST.null, refine=FAST.refine, polish=FAST.polish,
-                                   gn_iterations=FAST.gn_iterations, candidates=candidates)
+            opts = dataclasses.replace(FAST, candidates=candidates)
             cache[key] = diagnose(planted(effects).noisy, twin, options=opts)
         return cache[key]
 

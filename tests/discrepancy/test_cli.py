@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from discrepancy.episode import to_recording
 from discrepancy.schema import validate
 from scaletwin.cli import main
@@ -20,3 +22,11 @@ def test_diagnose_cli(planted, tmp_path, capsys) -> None:
     bad.write_text("time [s],F21 [N]\n0.1,3\n")
     assert main(["diagnose", str(bad), "--twin", "er12"]) == 2
     assert "missing required columns" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_bench_cli(tmp_path) -> None:
+    out, jsonl = tmp_path / "bench.md", tmp_path / "bench.jsonl"
+    assert main(["bench-discrepancy", "--cases", "2", "--seed", "5", "--out", str(out), "--jsonl", str(jsonl)]) == 0
+    assert "top-1 identification" in out.read_text()
+    assert len(jsonl.read_text().splitlines()) == 2
