@@ -94,6 +94,16 @@ def write_card(directory: str | Path, card: dict[str, Any]) -> Path:
     return path
 
 
+def prepare_directory(directory: str | Path, names: Iterable[str], overwrite: bool) -> Path:
+    """Create ``directory``; refuse (``FileExistsError``) if it already holds one of ``names`` unless ``overwrite``."""
+    directory = Path(directory)
+    present = [n for n in names if (directory / n).exists()]
+    if present and not overwrite:
+        raise FileExistsError(f"{directory} already holds {present}; pass overwrite=True to replace them")
+    directory.mkdir(parents=True, exist_ok=True)
+    return directory
+
+
 def versions(packages: Iterable[str] = VERSION_PACKAGES) -> dict[str, str]:
     """Versions of Python and of the packages a checkpoint depends on."""
     out = {"python": platform.python_version()}

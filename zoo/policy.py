@@ -19,7 +19,7 @@ from safetensors.torch import load_file, save_file
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.torch_layers import FlattenExtractor
 
-from zoo.checkpoint import CARD_NAME, finish_checkpoint
+from zoo.checkpoint import CARD_NAME, finish_checkpoint, prepare_directory
 from zoo.errors import CheckpointError
 from zoo.loading import load, register_builder
 from zoo.spaces import space_from_json, space_to_json
@@ -131,13 +131,6 @@ def describe(policy: ActorCriticPolicy) -> dict[str, Any]:
     }
 
 
-def _prepare_dir(directory: Path, names: list[str], overwrite: bool) -> None:
-    present = [n for n in names if (directory / n).exists()]
-    if present and not overwrite:
-        raise FileExistsError(f"{directory} already holds {present}; pass overwrite=True to replace them")
-    directory.mkdir(parents=True, exist_ok=True)
-
-
 def save_policy(model: Any, directory: str | Path, card_fields: Mapping[str, Any],
                 attachments: Mapping[str, str | Path] | None = None, overwrite: bool = False) -> Path:
     """Write a policy checkpoint: ``weights.safetensors``, attachments (e.g. ``training.rrd``) and ``card.json``.
@@ -153,7 +146,7 @@ def save_policy(model: Any, directory: str | Path, card_fields: Mapping[str, Any
     policy = getattr(model, "policy", model)
     directory = Path(directory)
     attachments = dict(attachments or {})
-    _prepare_dir(directory, [WEIGHTS, CARD_NAME, *attachments], overwrite)
+    prepare_directory(directory, [WEIGHTS, CARD_NAME, *attachments], overwrite)
     state = {k: v.detach().cpu().contiguous() for k, v in policy.state_dict().items()}
     save_file(state, str(directory / WEIGHTS), metadata={"format": "pt"})
     (directory / WEIGHTS).chmod(0o644)  # safetensors writes 0600; checkpoints are shared read-only data

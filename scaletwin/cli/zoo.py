@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
 
 from rich.console import Console
 from rich.table import Table
@@ -13,7 +16,7 @@ from scaletwin.cli import CommandError
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("zoo", help="list the zoo's checkpoints or show one's card")
-    zsub = p.add_subparsers(dest="zoo_command", metavar="{list,show}", required=True)
+    zsub = p.add_subparsers(dest="zoo_command", metavar="{list,show,build}", required=True)
     ls = zsub.add_parser("list", help="registered checkpoints")
     ls.add_argument("--kind", help="only this kind (policy, scaling-model)")
     ls.set_defaults(func=run_list)
@@ -22,6 +25,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     show.add_argument("--verify", action="store_true", help="also verify every file's sha256 and rebuild it")
     show.add_argument("--json", action="store_true", help="print the whole card as JSON")
     show.set_defaults(func=run_show)
+    build = zsub.add_parser("build", help="rebuild the δ1 checkpoints from scratch (data → fit → evaluate)")
+    build.add_argument("--data", default="runs/zoo-data",
+                       help="recordings folder (train/, held_out/); simulated there if missing (default runs/zoo-data)")
+    build.add_argument("--only", nargs="+", metavar="NAME", help="only these entries (default: all)")
+    build.add_argument("--seed", type=int, default=0, help="pipeline seed (default 0)")
+    build.add_argument("--out", help="checkpoint root (default: the package's zoo/checkpoints)")
+    build.add_argument("--registry", help="registry file to update (default: the package's zoo/registry.json)")
+    build.add_argument("--workers", default=None, help="simulation workers (default: the executor's default)")
+    build.set_defaults(func=run_build)
 
 
 def run_list(args: argparse.Namespace) -> int:
@@ -36,6 +48,54 @@ def run_list(args: argparse.Namespace) -> int:
         table.add_row(name, entries[name]["kind"], entries[name].get("summary", ""))
     Console().print(table)
     return 0
+
+
+def run_build(args: argparse.Namespace) -> int:
+    import torch
+
+    from zoo.build import BuildConfig, build_zoo
+
+    torch.set_num_threads(1)
+    cfg = BuildConfig(data_dir=Path(args.data), seed=args.seed, names=tuple(args.only) if args.only else None,
+                      executor=int(args.workers) if args.workers and args.workers.isdigit() else args.workers)
+    if args.out:
+        cfg = replace(cfg, out_root=Path(args.out))
+    if args.registry:
+        cfg = replace(cfg, registry=Path(args.registry))
+    built = build_zoo(cfg)
+    table = Table(title="rebuilt checkpoints")
+    for col in ("name", "directory", "held-out R² (dig)", "miniature error %"):
+        table.add_column(col)
+    import zoo
+
+    for name, path in built.items():
+        metrics = zoo.card(path)["metrics"]
+        table.add_row(name, str(path), f"{metrics['held_out_episodes']['r2_dig']:.4f}",
+                      f"{metrics['mini']['mean_abs_pct_error']:.2f}")
+    Console().print(table)
+    return 0
+
+
+def scaling_rows(card: dict[str, Any]) -> list[tuple[str, str]]:
+    """The headline fields of a scaling-model card as (field, text) rows (none for other kinds)."""
+    if card.get("kind") != "scaling-model":
+        return []
+    groups, metrics, training = card["groups"], card["metrics"], card["training"]
+    held = metrics["held_out_episodes"]
+    machines = "; ".join(f"{m}: F21 MAPE {v['f21_mape_pct']:.1f} %, interval coverage {v['interval_coverage']:.2f}"
+                         for m, v in metrics["held_out_machines"].items())
+    return [("predicts", card["predicts"]["equation"]),
+            ("groups", f"{groups['set']}: π1 = {groups['output']['expression']}; inputs "
+                       + ", ".join(g["expression"] for g in groups["inputs"])),
+            ("inputs", ", ".join(f"{d['name']} [{d['unit']}]" for d in card["inputs"])),
+            ("interval", f"{card['interval']['method']} at {card['interval']['coverage']:.0%}"),
+            ("held_out episodes", f"R² of δ1 {held['r2_dig']:.4f} (dig cycles), {held['r2']:.4f} (all rows); "
+                                  f"F21 MAPE {held['f21_mape_pct']:.2f} %"),
+            ("held_out machines", machines),
+            ("miniature", f"mean abs. error {metrics['mini']['mean_abs_pct_error']:.2f} % (direct-Pi "
+                          f"{metrics['mini']['direct_pi_mean_abs_pct_error']:.1f} %)"),
+            ("training", f"machines {training['machines']}, soils {training['soils']}, data "
+                         f"{training['data_hashes']}, seed {training['seed']}, code {training['code_version']}")]
 
 
 def run_show(args: argparse.Namespace) -> int:
@@ -54,6 +114,8 @@ def run_show(args: argparse.Namespace) -> int:
     table = Table(title=f"{card['name']} ({card['kind']})" + (": verified" if args.verify else ""))
     table.add_column("field")
     table.add_column("value", overflow="fold")
+    for key, value in scaling_rows(card):
+        table.add_row(key, value)
     for key in ("description", "algorithm", "env_id", "env_kwargs", "policy_kwargs", "seed", "created", "versions",
                 "files"):
         if key in card:

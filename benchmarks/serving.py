@@ -1,0 +1,172 @@
+"""Serving speed of the zoo's δ1 models, side by side with a plain torch forward pass of the same network.
+
+Targets (issue 6): median latency of one prediction ≤ 50 µs on one core, batch throughput ≥ 1 million rows/s.
+
+* one prediction: ``model.predict_row(x)`` (FFNN, ensemble) or ``stream.push(x)`` (GRU, hidden state carried):
+  raw SI target quantities in, F21 with its interval out (groups, distortion features, range check, network,
+  Eq. 22); against ``net(z)`` on one already-standardised float32 row under ``torch.inference_mode``;
+* batch: ``model.predict_array(X)`` on 1 000 000 raw SI rows → F21, interval, extrapolation flags; against one
+  ``net(Z)`` call on the 1 000 000 standardised float32 feature rows (GRU: 1 000 sequences of 1 000 steps both ways).
+
+Everything runs in this process with one thread (torch, OpenBLAS). Rows are the held-out check rows shipped with
+the checkpoints, repeated. Run: ``python benchmarks/serving.py [--rows 1000000] [--out benchmarks/results/serving.md]``.
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ[_var] = "1"
+
+import argparse  # noqa: E402
+import datetime as dt  # noqa: E402
+import statistics  # noqa: E402
+import time  # noqa: E402
+import warnings  # noqa: E402
+from collections.abc import Callable  # noqa: E402
+from pathlib import Path  # noqa: E402
+from typing import Any  # noqa: E402
+
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+
+import zoo  # noqa: E402
+from scaling.provenance import code_version, machine, versions  # noqa: E402
+from zoo.build import ENTRIES  # noqa: E402
+from zoo.scaling_kind import check_rows  # noqa: E402
+from zoo.serving.kernels import EnsembleKernel, GRUKernel  # noqa: E402
+
+LATENCY_TARGET_US = 50.0
+THROUGHPUT_TARGET = 1_000_000
+
+
+def median_latency_us(fn: Callable[[int], Any], calls: int) -> float:
+    """Median wall time of ``fn(i)`` over ``calls`` calls (after 200 warm-up calls), µs."""
+    for i in range(200):
+        fn(i)
+    times = []
+    clock = time.perf_counter
+    for i in range(calls):
+        start = clock()
+        fn(i)
+        times.append(clock() - start)
+    return 1e6 * statistics.median(times)
+
+
+def best_rate(fn: Callable[[], Any], rows: int, repeats: int) -> float:
+    """Rows per second of the fastest of ``repeats`` runs of ``fn`` (after one warm-up run)."""
+    fn()
+    best = min(_timed(fn) for _ in range(repeats))
+    return rows / best
+
+
+def _timed(fn: Callable[[], Any]) -> float:
+    start = time.perf_counter()
+    fn()
+    return time.perf_counter() - start
+
+
+def inputs(model: zoo.ScalingModel, n_rows: int) -> tuple[np.ndarray, np.ndarray]:
+    """(raw SI rows (n, v), their standardised float32 features (n, k) for the plain torch pass)."""
+    check = check_rows(zoo.resolve(model.name)[0])
+    base = check[[f"{d['name']} [{d['unit']}]" for d in model.card["inputs"]]].to_numpy(float)
+    x = np.tile(base, (n_rows // len(base) + 1, 1))[:n_rows]
+    g, _ = model._features_of(x, 0)
+    kernel = model.kernel
+    if isinstance(kernel, EnsembleKernel):
+        z = (g - kernel.x_mean[0]) / kernel.x_std[0]
+    else:
+        z = (g - kernel.x_mean) / kernel.x_std
+    return x, np.ascontiguousarray(z, dtype=np.float32)
+
+
+def plain_nets(model: zoo.ScalingModel) -> list[torch.nn.Module]:
+    kernel = model.kernel
+    return list(kernel.nets) if isinstance(kernel, EnsembleKernel) else [kernel.net]
+
+
+def bench_model(name: str, n_rows: int, calls: int, repeats: int) -> dict[str, Any]:
+    model = zoo.load(name)
+    x, z = inputs(model, n_rows)
+    nets = plain_nets(model)
+    recurrent = isinstance(model.kernel, GRUKernel)
+    rows_list = [list(r) for r in x[:1000]]
+    z1 = torch.from_numpy(z[:1].copy())
+    if recurrent:
+        stream = model.stream()
+        ours_one = median_latency_us(lambda i: stream.push(rows_list[i % 1000]), calls)
+        h = [None]
+
+        def torch_step(_: int) -> None:
+            out, h[0] = nets[0].gru(z1[None], h[0])
+            nets[0].head(out)
+    else:
+        ours_one = median_latency_us(lambda i: model.predict_row(rows_list[i % 1000]), calls)
+
+        def torch_step(_: int) -> None:
+            for net in nets:
+                net(z1)
+    with torch.inference_mode():
+        torch_one = median_latency_us(torch_step, calls)
+    length = 1000
+    seqs = np.arange(n_rows).reshape(-1, length) if recurrent else None
+    zt = torch.from_numpy(z.reshape(-1, length, z.shape[1]) if recurrent else z)
+
+    def torch_batch() -> None:
+        with torch.inference_mode():
+            for net in nets:
+                net(zt)
+
+    ours_rate = best_rate(lambda: model.predict_array(x, sequences=seqs), n_rows, repeats)
+    torch_rate = best_rate(torch_batch, n_rows, repeats)
+    arch = model.card["model"]
+    return {"name": name, "class": arch["class"], "ours_us": ours_one, "torch_us": torch_one,
+            "ours_rate": ours_rate, "torch_rate": torch_rate,
+            "batch_note": f"{n_rows // length} sequences × {length} steps" if recurrent else f"{n_rows} rows"}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--rows", type=int, default=1_000_000)
+    ap.add_argument("--calls", type=int, default=20_000)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--models", nargs="+", default=[e.name for e in ENTRIES])
+    ap.add_argument("--out", default="benchmarks/results/serving.md")
+    args = ap.parse_args()
+    torch.set_num_threads(1)
+    warnings.simplefilter("ignore", zoo.ExtrapolationWarning)  # the repeated check rows include some
+    load_start = os.getloadavg()[0]
+    results = []
+    for name in args.models:
+        res = bench_model(name, args.rows, args.calls, args.repeats)
+        results.append(res)
+        print(f"{name}: one row {res['ours_us']:.1f} µs (torch {res['torch_us']:.1f} µs), batch "
+              f"{res['ours_rate'] / 1e6:.2f} M rows/s (torch {res['torch_rate'] / 1e6:.2f} M rows/s)", flush=True)
+    info = machine()
+    lines = [f"# serving ({dt.datetime.now(dt.UTC):%Y-%m-%d %H:%M} UTC, {info['processor']}, {info['cpus']} CPUs, "
+             f"{info['platform']})", "",
+             f"Code `{code_version()}`; {versions()}; one thread (torch.set_num_threads(1), OpenBLAS 1).", "",
+             "One prediction = raw SI target quantities → F21 with its interval and extrapolation check "
+             "(`predict_row`; GRU: `stream.push`, state carried). Plain torch = the same network's forward pass on "
+             "one already-standardised float32 row (`torch.inference_mode`). Batch = "
+             f"`predict_array` on {args.rows} raw SI rows vs one plain `net(Z)` call on their standardised "
+             "features. Ratio = ours / plain torch (latency: lower is better; throughput: higher is better).", "",
+             "| model | one prediction, median [µs] | plain torch [µs] | ratio | ≤ 50 µs | batch [M rows/s] | "
+             "plain torch [M rows/s] | ratio | ≥ 1 M rows/s | batch |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in results:
+        lines.append(f"| {r['name']} ({r['class']}) | {r['ours_us']:.1f} | {r['torch_us']:.1f} | "
+                     f"{r['ours_us'] / r['torch_us']:.2f} | {'yes' if r['ours_us'] <= LATENCY_TARGET_US else 'no'} | "
+                     f"{r['ours_rate'] / 1e6:.2f} | {r['torch_rate'] / 1e6:.2f} | "
+                     f"{r['ours_rate'] / r['torch_rate']:.2f} | "
+                     f"{'yes' if r['ours_rate'] >= THROUGHPUT_TARGET else 'no'} | {r['batch_note']} |")
+    lines += ["", f"Machine load average (1 min): {load_start:.1f} at the start, {os.getloadavg()[0]:.1f} at the end "
+              "(2 cores shared with other jobs: above 1 the single thread was competing for its core).", ""]
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.out).write_text("\n".join(lines))
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,104 @@
+"""The shipped δ1 checkpoints: registered, loaded after verification, and reproducing their card metrics.
+
+Every registered checkpoint loads and matches its card; each scaling model reproduces the miniature validation
+errors and the metrics of its check set (held-out machines' dig cycles shipped in ``check.csv``) through the
+serving path, and the FFNN's grid configuration is the one the committed grid chose.
+"""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import zoo
+from scaling import evaluation as ev
+from scaling.grid import best_config
+from scaling.models import r2_score
+from scaling.validation import static_rows
+from zoo.build import ENTRIES, FFNN_GRID_BEST
+from zoo.checkpoint import verify_files
+from zoo.scaling_kind import CARD_KEYS, check_rows
+
+SCALING = [e.name for e in ENTRIES]
+REPO = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(scope="module")
+def models() -> dict[str, zoo.ScalingModel]:
+    return {name: zoo.load(name) for name in SCALING}
+
+
+@pytest.fixture(scope="module")
+def mini_rows() -> pd.DataFrame:
+    return static_rows()
+
+
+def test_every_registered_checkpoint_loads_and_matches_its_card():
+    assert set(SCALING) | {"bucketfill-ppo"} <= set(zoo.list())
+    assert sorted(zoo.list(kind="scaling-model")) == sorted(SCALING)
+    for name in zoo.list():
+        card = zoo.card(name)
+        directory, _ = zoo.resolve(name)
+        verify_files(directory, card)
+        obj = zoo.load(name)
+        assert obj.card == card and obj.ref == name
+        assert sum(p.stat().st_size for p in directory.iterdir()) < 2_000_000, name
+
+
+@pytest.mark.parametrize("name", SCALING)
+def test_card_describes_the_model(name: str, models: dict[str, zoo.ScalingModel]):
+    card = zoo.card(name)
+    for key in (*CARD_KEYS, "model", "versions", "files"):
+        assert key in card, key
+    assert set(card["files"]) == {"config.json", "weights.safetensors", "check.csv"}
+    assert card["predicts"]["variable"] == "F21" and card["predicts"]["unit"] == "N"
+    assert card["groups"]["output"]["expression"] == "F21/F31"
+    assert all(g["exponents"] for g in card["groups"]["inputs"])
+    assert "π1(source)/π1(target)" in card["delta_convention"]
+    assert set(card["training"]["machines"]) == {"er12", "wa475"} and card["training"]["soils"]
+    assert len(card["training"]["data_hashes"]["train"]) == 16 and card["training"]["code_version"]
+    assert [d["name"] for d in card["inputs"]] == list(models[name].target_variables)
+    assert 0.9 < card["metrics"]["held_out_episodes"]["r2_dig"] <= 1.0
+    assert card["interval"]["method"] == ("ensemble" if name.startswith("ensemble") else "residual-quantiles")
+    assert len(card["training_range"]["min"]) == len(card["groups"]["inputs"])
+
+
+@pytest.mark.parametrize("name", SCALING)
+def test_scale_force_reproduces_the_miniature_validation(name: str, models: dict[str, zoo.ScalingModel],
+                                                         mini_rows: pd.DataFrame):
+    model = models[name]
+    mini = model.card["metrics"]["mini"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", zoo.ExtrapolationWarning)  # gru-eq23: the miniature's x_b/y_b, one load
+        out = model.scale_force(None, mini_rows.drop(columns=["F21"]), hold=mini["hold_steps"])
+    actual = mini_rows["F21"].to_numpy()
+    pct = 100 * (out.force - actual) / actual
+    np.testing.assert_allclose(pct, mini["pct_error"], atol=1e-6)
+    assert np.mean(np.abs(pct)) == pytest.approx(mini["mean_abs_pct_error"], abs=1e-6)
+    assert np.all(out.lower <= out.force) and np.all(out.force <= out.upper)
+
+
+@pytest.mark.parametrize("name", SCALING)
+def test_check_set_reproduces_card_metrics(name: str, models: dict[str, zoo.ScalingModel]):
+    model = models[name]
+    directory, _ = zoo.resolve(name)
+    rows = check_rows(directory)
+    expected = model.card["metrics"]["check_set"]
+    out = model.scale_force(None, rows.drop(columns=["F21 [N]"]))
+    f21 = rows["F21 [N]"].to_numpy()
+    delta_actual = (model.reference["F21"] / model.reference["F31"]) / (f21 / rows["F31 [N]"].to_numpy())
+    assert len(out) == expected["rows"]
+    assert r2_score(delta_actual, out.delta1) == pytest.approx(expected["r2"], abs=1e-6)
+    assert float(np.mean(ev.ape(out.force, f21))) == pytest.approx(expected["f21_mape_pct"], abs=1e-5)
+
+
+def test_ffnn_configuration_is_the_grid_winner():
+    grid = pd.read_csv(REPO / "benchmarks" / "results" / "scaling_reproduce" / "grid_results.csv")
+    best = best_config(grid)
+    assert {k: best[k] for k in FFNN_GRID_BEST} == FFNN_GRID_BEST
+    config = zoo.card("ffnn-eq10")["model"]["config"]
+    assert {k: config[k] for k in FFNN_GRID_BEST} == FFNN_GRID_BEST

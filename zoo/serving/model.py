@@ -1,0 +1,361 @@
+"""``ScalingModel``: a verified δ1 checkpoint that scales the bucket force F21 from a source machine to a target.
+
+δ1 convention (:mod:`scaling.factors`): source = the calibrated machine (the paper's "model"; by default the ER12
+twin row the checkpoint was trained against, ``model.reference``), target = the machine to predict (the paper's
+"prototype"). The model predicts δ1 = π1(source)/π1(target) from the target's distortions, then
+
+    F21_target = F31_target · π1(source) / δ1          (Eq. 22, π1 = F21/F31)
+
+so the target needs only measurable quantities (F31, cylinder forces, bucket mass and centre of mass, bucket
+accelerations or speeds; ``model.target_variables``), never F21 itself. The interval comes from the card
+(``card["interval"]``): held-out residual quantiles of ln δ1 for FFNN and GRU models, the ensemble's predictive
+spread for the deep ensemble. Targets whose distortion features fall outside the training range stored on the card
+raise an :class:`ExtrapolationWarning` (the prediction is still returned, flagged per row).
+
+Three paths share the same arithmetic: :meth:`ScalingModel.scale_force` (any table with units, batch),
+:meth:`ScalingModel.predict_row` (one row as floats in SI, the lean path) and :meth:`ScalingModel.stream`
+(row by row with the GRU's hidden state carried; see :mod:`zoo.serving.stream`).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import warnings
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from dataclasses import dataclass
+from fractions import Fraction
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import pandas as pd
+
+from scaling.factors import scaled_variable
+from scaling.groups import PiGroup
+from scaling.models import DeltaModel
+from scaling.validation import model_groups
+from zoo.serving.inputs import InputError, Rows, split_header, to_matrix
+from zoo.serving.kernels import CHUNK, EnsembleKernel, Features, GroupPlan, GRUKernel, kernel_for, normal_quantile
+
+if TYPE_CHECKING:
+    from zoo.serving.stream import Prediction, Stream
+
+
+def served_variables(output: PiGroup, inputs: Sequence[PiGroup], variable: str) -> tuple[tuple[str, ...],
+                                                                                        tuple[str, ...]]:
+    """(source variables, target variables) of a model: every variable of its groups, the scaled ``variable``
+    (e.g. F21) only on the source side; the target order is the order of :meth:`ScalingModel.predict_row`."""
+    source = tuple(dict.fromkeys(v for g in (output, *inputs) for v in g.variables))
+    target = tuple(dict.fromkeys(v for g in (*inputs, output) for v in g.variables if v != variable))
+    return source, target
+
+
+class ExtrapolationWarning(UserWarning):
+    """The target's distortions lie outside the range the model was trained on: the prediction is extrapolated."""
+
+
+@dataclass
+class ScaledForce:
+    """Scaled force per target row (SI): ``force`` (e.g. F21, N) with its ``lower``/``upper`` interval at
+    ``coverage``, the predicted ``delta1`` and whether each row was ``extrapolated``."""
+
+    variable: str
+    unit: str
+    force: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+    delta1: np.ndarray
+    extrapolated: np.ndarray
+    coverage: float
+    interval_method: str
+
+    def __len__(self) -> int:
+        return len(self.force)
+
+    def to_frame(self) -> pd.DataFrame:
+        """Columns ``F21 [N]``, ``F21_lower [N]``, ``F21_upper [N]``, ``delta1 [1]``, ``extrapolated``."""
+        v, u = self.variable, self.unit
+        return pd.DataFrame({f"{v} [{u}]": self.force, f"{v}_lower [{u}]": self.lower,
+                             f"{v}_upper [{u}]": self.upper, "delta1 [1]": self.delta1,
+                             "extrapolated": self.extrapolated})
+
+
+class ScalingModel:
+    """A δ1 model from the zoo, ready to serve (see the module docstring).
+
+    Attributes:
+        model: the rebuilt :class:`~scaling.models.DeltaModel`.  card: its card.  ref: name or path it came from.
+        variable, unit: the scaled quantity (``"F21"``, ``"N"``).
+        target_variables: what a target row needs (SI order of :meth:`predict_row`).
+        source_variables: what a source row needs (F21 included).
+        coverage: the default interval level.
+    """
+
+    def __init__(self, model: DeltaModel, card: Mapping[str, Any], ref: str) -> None:
+        self.model, self.card, self.ref = model, dict(card), ref
+        output, inputs = model_groups(model)
+        self.output_group, self.input_groups = output, inputs
+        self.variable, exponent = scaled_variable(output)
+        self.unit = str(card["predicts"]["unit"])
+        self._inv_exp = 1.0 / float(exponent)
+        rest = {k: e for k, e in output.exponents.items() if k != self.variable}
+        self.source_variables, self.target_variables = served_variables(output, inputs, self.variable)
+        rest_group = PiGroup(rest) if rest else PiGroup({self.target_variables[0]: Fraction(1)})  # unused if no rest
+        self._plan_t = GroupPlan.build([*inputs, rest_group], self.target_variables)
+        self._has_rest = bool(rest)
+        self._plan_s = GroupPlan.build([*inputs, output], self.source_variables)
+        self.kernel = kernel_for(model)
+        interval = card["interval"]
+        self.coverage = float(interval["coverage"])
+        self.interval_method = str(interval["method"])
+        self._quantiles = {float(c): (float(q[0]), float(q[1]))
+                           for c, q in interval.get("log_delta_residual_quantiles", {}).items()}
+        rng = card["training_range"]
+        g_min, g_max = np.asarray(rng["min"], dtype=float), np.asarray(rng["max"], dtype=float)
+        margin = float(rng.get("margin", 0.0)) * (g_max - g_min)
+        self._g_lo, self._g_hi = g_min - margin, g_max + margin
+        self._group_names = [g.expression() for g in inputs]
+        self._row_spread = self._spread(None)
+        self.bind(self.reference)
+
+    # ------------------------------------------------------------------------------------------------ source
+
+    @property
+    def name(self) -> str:
+        return str(self.card["name"])
+
+    @property
+    def recurrent(self) -> bool:
+        return isinstance(self.kernel, GRUKernel)
+
+    @property
+    def reference(self) -> pd.Series:
+        """The calibrated source row the model was trained against (SI), the default source."""
+        src = self.card["source"]
+        return pd.Series({k: float(v) for k, v in src["row"].items()}, name=src.get("index"))
+
+    def bind(self, source: Rows) -> ScalingModel:
+        """Use ``source`` (one row, or n rows paired with n targets) as the source from now on; returns self."""
+        x = to_matrix(source, self.source_variables, "source")
+        vals = self._plan_s.values(x)
+        pi1 = vals[:, -1]
+        if not (np.all(np.isfinite(vals)) and np.all(pi1 > 0)):
+            raise InputError(f"source: groups must be finite and π1 = {self.output_group.expression()} > 0; got "
+                             f"π1 = {pi1[:3].tolist()}")
+        eps = self.model.transform_.eps
+        sign = self.model.transform_.sign
+        one = len(x) == 1
+        self._features = Features.build(eps, sign, vals[0, :-1] if one else vals[:, :-1])
+        self._pi1_source = float(pi1[0]) if one else pi1
+        self._n_source = len(x)
+        return self
+
+    def with_source(self, source: Rows) -> ScalingModel:
+        """A copy bound to another source (this model keeps its own)."""
+        return copy.copy(self).bind(source)
+
+    # ------------------------------------------------------------------------------------------------ batch
+
+    def scale_force(self, source: Rows | None, target: Rows, *, coverage: float | None = None,
+                    hold: int | None = None) -> ScaledForce:
+        """F21 of every target row with its interval (SI), from the source's F21 through δ1 (Eq. 22).
+
+        Args:
+            source: the source machine's row (one row, or one per target row); ``None``: :attr:`reference`.
+            target: the target machine's measurable quantities (:attr:`target_variables`), any accepted form
+                (:mod:`zoo.serving.inputs`).
+            coverage: interval level (default the card's; residual-quantile intervals exist at the card's levels).
+            hold: recurrent models only: treat each target row as the machine held still for ``hold`` steps and
+                report the last step (the miniature validation uses 30). Otherwise a recurrent model runs the rows
+                as time series: one per ``episode`` (sorted by ``t``) if the target has those columns, else one.
+
+        Raises:
+            InputError: missing quantities, bad units, non-finite values, or a source/target size mismatch.
+        """
+        x = to_matrix(target, self.target_variables, "target")
+        model = self
+        if source is not None:
+            model = self.with_source(source)
+        if model._n_source not in (1, len(x)):
+            raise InputError(f"source has {model._n_source} rows; give one row or one per target row ({len(x)})")
+        seqs = self._sequences(target, len(x)) if self.recurrent and hold is None else None
+        if hold is not None:
+            if not self.recurrent:
+                raise InputError("hold applies to recurrent (GRU) models only")
+            if model._n_source > 1:
+                raise InputError("hold needs a single source row")
+            return model.predict_array(np.repeat(x, hold, axis=0), coverage=coverage,
+                                       sequences=np.arange(len(x) * hold).reshape(len(x), hold), pick=hold)
+        return model.predict_array(x, coverage=coverage, sequences=seqs)
+
+    def predict_array(self, x: np.ndarray, *, coverage: float | None = None,
+                      sequences: Sequence[np.ndarray] | np.ndarray | None = None,
+                      pick: int | None = None) -> ScaledForce:
+        """Batch path on a raw SI matrix ``x`` (n, len(target_variables)); no unit handling.
+
+        ``sequences`` (recurrent models): index arrays run as separate time series (default: all rows, one series);
+        ``pick``: keep only the last row of every ``pick`` rows (used by ``hold``).
+        """
+        n = len(x)
+        spread = self._spread(coverage)
+        parts = []
+        if isinstance(self.kernel, GRUKernel):
+            g, rest = self._features_of(x, 0)
+            mu = self.kernel.sequences(g, [np.arange(n)] if sequences is None else list(sequences))
+            if pick is not None:
+                keep = np.arange(pick - 1, n, pick)
+                g, mu, rest = g[keep], mu[keep], rest[keep]
+            parts.append(self._finish(g, rest, mu, None, self._pi1_source, spread))
+        else:
+            for start in range(0, n, CHUNK):
+                g, rest = self._features_of(x[start:start + CHUNK], start)
+                mu, var = self.kernel.batch(g)
+                pi1 = self._pi1_source if self._n_source == 1 else self._pi1_source[start:start + CHUNK]
+                parts.append(self._finish(g, rest, mu, var, pi1, spread))
+        force, lo, hi, delta, outside, g_out = (np.concatenate(c) for c in zip(*parts, strict=True))
+        if outside.any():
+            self._warn(g_out, int(outside.sum()), len(outside))
+        if not np.all(np.isfinite(force)):
+            raise InputError(f"target: {int((~np.isfinite(force)).sum())} rows give a non-finite {self.variable}")
+        return ScaledForce(self.variable, self.unit, force, lo, hi, delta, outside, spread[0], self.interval_method)
+
+    def _features_of(self, x: np.ndarray, start: int) -> tuple[np.ndarray, np.ndarray]:
+        """(distortion features g, rest of π1) of target rows ``x`` (rows ``start``… of the batch)."""
+        vals = self._plan_t.values(x)
+        bad = ~np.all(np.isfinite(vals), axis=1)
+        if bad.any():
+            raise InputError(f"target: {int(bad.sum())} rows give a non-finite group (first row "
+                             f"{start + int(np.argmax(bad))}; a divisor such as F31 or y_b is 0)")
+        feats = self._features if self._n_source == 1 else self._features.rows(start, start + len(x))
+        return feats(vals[:, :-1]), (vals[:, -1] if self._has_rest else np.ones(len(x)))
+
+    def _finish(self, g: np.ndarray, rest: np.ndarray, mu: np.ndarray, var: np.ndarray | None,
+                pi1: float | np.ndarray, spread: tuple[float, float, float]) -> tuple[np.ndarray, ...]:
+        """(force, lower, upper, δ1, outside, g of the rows outside) from ln δ1 ``mu`` (and its variance)."""
+        _, a, b = spread
+        if var is not None:
+            half = a * np.sqrt(var)
+            lo_log, hi_log = mu - half, mu + half
+        else:
+            lo_log, hi_log = mu + a, mu + b
+        delta = np.exp(mu)
+        force = self._recover(pi1, delta, rest)
+        f_a, f_b = self._recover(pi1, np.exp(lo_log), rest), self._recover(pi1, np.exp(hi_log), rest)
+        outside = ((g < self._g_lo) | (g > self._g_hi)).any(axis=1)
+        return force, np.minimum(f_a, f_b), np.maximum(f_a, f_b), delta, outside, g[outside]
+
+    # ------------------------------------------------------------------------------------------------ one row
+
+    def predict_row(self, x: Sequence[float]) -> tuple[float, float, float]:
+        """(force, lower, upper) for one target row given as SI floats in :attr:`target_variables` order.
+
+        The lean path for a live loop: no pandas and no unit handling. Feed-forward models only (use
+        :meth:`stream` for recurrent ones, which carries the hidden state).
+
+        Raises:
+            InputError: the row gives a non-finite result (NaN input, a zero divisor).
+            TypeError: a recurrent model.
+        """
+        if self.recurrent:
+            raise TypeError(f"{self.name} is recurrent: use model.stream() to carry its hidden state row to row")
+        return self.row(x, None)[:3]
+
+    def row(self, x: Sequence[float], state: Any) -> tuple[float, float, float, float, bool, Any]:
+        """(force, lower, upper, δ1, extrapolated, next state) for one SI row; ``state`` is the GRU hidden state
+        (``None`` for feed-forward models). Used by :meth:`predict_row` and :class:`~zoo.serving.stream.Stream`."""
+        if self._n_source != 1:
+            raise InputError("row by row serving needs a single source row (bind one with model.bind)")
+        try:
+            vals = self._plan_t.row(x)
+        except ZeroDivisionError:
+            raise InputError("target row: a divisor (e.g. F31 or y_b) is 0") from None
+        rest = vals[-1] if self._has_rest else 1.0
+        g = self._features(np.array(vals[:-1]))
+        kernel = self.kernel
+        var = 0.0
+        if isinstance(kernel, GRUKernel):
+            mu, state = kernel.step(g, kernel.initial_state() if state is None else state)
+        elif isinstance(kernel, EnsembleKernel):
+            mu, var = kernel.row(g)
+        else:
+            mu = kernel.row(g)
+        _, a, b = self._row_spread
+        if isinstance(kernel, EnsembleKernel):
+            half = a * math.sqrt(var)
+            lo_log, hi_log = mu - half, mu + half
+        else:
+            lo_log, hi_log = mu + a, mu + b
+        outside = bool((g < self._g_lo).any() or (g > self._g_hi).any())
+        if outside:
+            self._warn(g[None], 1, 1)
+        pi1 = self._pi1_source
+        ie = self._inv_exp
+        try:
+            force = float((pi1 / math.exp(mu) / rest) ** ie)
+            a, b = float((pi1 / math.exp(lo_log) / rest) ** ie), float((pi1 / math.exp(hi_log) / rest) ** ie)
+        except (ZeroDivisionError, TypeError, OverflowError):
+            force = a = b = math.nan
+        if not math.isfinite(force):
+            raise InputError(f"target row {list(x)}: non-finite {self.variable} (NaN or inf input?)")
+        return force, min(a, b), max(a, b), math.exp(mu), outside, state
+
+    # ------------------------------------------------------------------------------------------------ streaming
+
+    def stream(self, *, on_prediction: Callable[[Prediction], Any] | None = None, rerun: Any = None) -> Stream:
+        """A :class:`~zoo.serving.stream.Stream` over this model (push rows one at a time)."""
+        from zoo.serving.stream import Stream
+
+        return Stream(self, on_prediction=on_prediction, rerun=rerun)
+
+    def predict_stream(self, rows: Iterable[Any], **kwargs: Any) -> Iterator[Prediction]:
+        """Generator: one :class:`~zoo.serving.stream.Prediction` per row of ``rows`` (state carried)."""
+        with self.stream(**kwargs) as s:
+            for r in rows:
+                yield s.push(r)
+
+    # ------------------------------------------------------------------------------------------------ helpers
+
+    def _recover(self, pi1: float | np.ndarray, delta: np.ndarray, rest: np.ndarray) -> np.ndarray:
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            base = pi1 / delta / rest
+            return base if self._inv_exp == 1.0 else np.power(base, self._inv_exp)
+
+    def _spread(self, coverage: float | None) -> tuple[float, float, float]:
+        """(coverage, z, 0) for the ensemble's normal interval, or (coverage, q_lo, q_hi) residual quantiles."""
+        cov = self.coverage if coverage is None else float(coverage)
+        if not 0 < cov < 1:
+            raise InputError(f"coverage must be in (0, 1), got {cov}")
+        if self.interval_method == "ensemble":
+            return cov, normal_quantile(cov), 0.0
+        if cov not in self._quantiles:
+            raise InputError(f"{self.name}: residual intervals are stored at coverage {sorted(self._quantiles)}, "
+                             f"not {cov}")
+        return cov, *self._quantiles[cov]
+
+    def _warn(self, g_out: np.ndarray, n_out: int, n: int) -> None:
+        below, above = (g_out < self._g_lo).any(axis=0), (g_out > self._g_hi).any(axis=0)
+        groups = [f"{name} ({'below' if lo else ''}{'/' if lo and hi else ''}{'above' if hi else ''})"
+                  for name, lo, hi in zip(self._group_names, below, above, strict=True) if lo or hi]
+        warnings.warn(f"{self.name}: {n_out} of {n} target rows have distortions outside the training range "
+                      f"(groups {', '.join(groups)}); the scaled {self.variable} is extrapolated",
+                      ExtrapolationWarning, stacklevel=3)
+
+    def _sequences(self, target: Rows, n: int) -> list[np.ndarray] | None:
+        """One index array per ``episode`` of a target frame, in ``t`` (or ``time``) order; None: one sequence."""
+        if not isinstance(target, pd.DataFrame):
+            return None
+        cols = {split_header(c)[0]: c for c in target.columns}
+        if "episode" not in cols:
+            return None
+        time_col = cols.get("t", cols.get("time"))
+        frame = pd.DataFrame({"episode": target[cols["episode"]].to_numpy(), "i": np.arange(n),
+                              "t": target[time_col].to_numpy(float) if time_col is not None else np.arange(n)})
+        return [part.sort_values("t", kind="stable")["i"].to_numpy() for _, part in frame.groupby("episode")]
+
+    def __repr__(self) -> str:
+        return f"ScalingModel({self.name!r}, {self.model.name}, interval={self.interval_method})"
+
+    def __reduce__(self) -> tuple[Any, tuple[str]]:
+        from zoo.loading import load
+
+        return load, (self.ref,)
