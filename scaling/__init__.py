@@ -13,7 +13,8 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
-from scaling.factors import DeltaDataset, LogDistortion, distortions, prediction_factor, recover_target
+from scaling.delta_dataset import DeltaDataset
+from scaling.factors import LogDistortion, distortions, prediction_factor, recover_target
 from scaling.groups import PiGroup
 from scaling.pi_sets import PiSet, enumerate_pi_sets, read_manifest, write_manifest
 from scaling.pi_theorem import pi_groups

@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from scaling.factors import DeltaDataset
+from scaling.delta_dataset import DeltaDataset
 from scaling.models import DeepEnsemble, DeltaModel, r2_score
 
 AT_REST_TOLERANCE = 1e-3

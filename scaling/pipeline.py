@@ -30,7 +30,7 @@ from tqdm.auto import tqdm
 
 from scaling import evaluation as ev
 from scaling.data import DataBundle
-from scaling.factors import DeltaDataset
+from scaling.delta_dataset import DeltaDataset
 from scaling.group_choice import GroupChoice, choose_groups
 from scaling.models import DeltaModel, model_class
 from scaling.validation import MiniValidation, validate_mini
@@ -39,7 +39,7 @@ from scaling.validation import MiniValidation, validate_mini
 @dataclass(frozen=True)
 class ModelSpec:
     """One model of a run: ``name`` (directory and table name), registered ``cls``, group set ``groups``
-    (``"eq10"`` or ``"eq23"``) and constructor keyword arguments ``config``."""
+    (``"eq10"`` or ``"eq23"``, optionally ``+pose``) and constructor keyword arguments ``config``."""
 
     name: str
     cls: str
@@ -57,9 +57,11 @@ GRU_CONFIG: dict[str, Any] = {"hidden_size": 48, "num_layers": 1, "window": 64, 
 ENSEMBLE_CONFIG: dict[str, Any] = {"k": 5, "hidden_layers": 3, "units": 64, "lr": 3e-3, "epochs": 400,
                                    "batch_size": 512, "patience": 40}
 
-#: The paper's three models, its baseline, a power law and an ensemble for intervals.
+#: The paper's three models, its baseline, a power law, an ensemble for intervals, and our FFNN that also sees the
+#: linkage pose (:data:`scaling.group_choice.POSE_GROUPS`).
 DEFAULT_MODELS: tuple[ModelSpec, ...] = (
     ModelSpec("ffnn", "FFNN", "eq10", FFNN_CONFIG),
+    ModelSpec("ffnn-pose", "FFNN", "eq10+pose", FFNN_CONFIG),
     ModelSpec("gru-eq10", "GRUModel", "eq10", GRU_CONFIG),
     ModelSpec("gru-eq23", "GRUModel", "eq23", GRU_CONFIG),
     ModelSpec("power-law", "PowerLaw", "eq10"),

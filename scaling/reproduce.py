@@ -131,7 +131,7 @@ def reference_sensitivity(bundle: DataBundle, config: PipelineConfig, draws: int
                           progress: bool = False) -> pd.DataFrame:
     """Miniature mean absolute errors of FFNN and direct-Pi refitted with ``draws`` seeded reference rows."""
     rows = []
-    names = [n for n in ("ffnn", "direct-pi") if any(s.name == n for s in config.models)]
+    names = [n for n in ("ffnn", "ffnn-pose", "direct-pi") if any(s.name == n for s in config.models)]
     for k in range(draws):
         cfg = replace(config, models=model_specs(names, config.models), reference_seed=k)
         res = ScalingPipeline(cfg).run(DataBundle(bundle.train, None, dict(bundle.hashes)), progress=progress)
@@ -148,7 +148,8 @@ def make_figures(run: PipelineResult, grid: pd.DataFrame, fig_dir: str | Path) -
     """Our versions of the paper's Figs. 6–10 and 12 as PNG files (held-out dig cycles for Figs. 6–7)."""
     fig_dir = Path(fig_dir)
     out: dict[str, Path] = {}
-    titles = {"ffnn": "Fig. 6: FFNN, Eq. (10)", "gru-eq10": "Fig. 7 (left): GRU, Eq. (10)",
+    titles = {"ffnn": "Fig. 6: FFNN, Eq. (10)", "ffnn-pose": "FFNN, Eq. (10) + pose (ours)",
+              "gru-eq10": "Fig. 7 (left): GRU, Eq. (10)",
               "gru-eq23": "Fig. 7 (right): GRU, Eq. (23)"}
     for name, title in titles.items():
         if name not in run.models:

@@ -85,7 +85,7 @@ def load_run(run_dir: str | Path) -> tuple[dict[str, DeltaModel], pd.Series]:
     ref = read_json(path / REFERENCE)
     reference = pd.Series(ref["row"], name=ref["index"])
     models = {d.name: load_model(d) for d in sorted((path / "models").iterdir()) if (d / "config.json").exists()}
-    order = ["ffnn", "gru-eq10", "gru-eq23", "power-law", "deep-ensemble", "direct-pi"]
+    order = ["ffnn", "ffnn-pose", "gru-eq10", "gru-eq23", "power-law", "deep-ensemble", "direct-pi"]
     return dict(sorted(models.items(), key=lambda kv: order.index(kv[0]) if kv[0] in order else len(order))), reference
 
 

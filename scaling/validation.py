@@ -36,7 +36,7 @@ from scaletwin_envs.physics.statics import solve_static
 from scaletwin_envs.runtime import qpos_for_pose, set_payload
 from scaletwin_envs.signals import SignalReader
 from scaletwin_envs.specs import LoaderSpec, make_loader
-from scaling.factors import DeltaDataset
+from scaling.delta_dataset import DeltaDataset
 from scaling.groups import PiGroup
 from scaling.models import DeepEnsemble, DeltaModel, GRUModel
 from scaling.plots import plot_error_vs_load

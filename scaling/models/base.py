@@ -19,7 +19,8 @@ import numpy as np
 import torch
 from safetensors.torch import load_file, save_file
 
-from scaling.factors import DeltaDataset, LogDistortion
+from scaling.delta_dataset import DeltaDataset
+from scaling.factors import LogDistortion
 
 CONFIG_FILE = "config.json"
 WEIGHTS_FILE = "weights.safetensors"

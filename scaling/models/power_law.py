@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from scaling.factors import DeltaDataset
+from scaling.delta_dataset import DeltaDataset
 from scaling.models.base import Data, DeltaModel
 
 

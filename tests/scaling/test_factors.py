@@ -12,11 +12,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from scaling import factors
+from scaling.delta_dataset import DeltaDataset, concat_datasets
 from scaling.factors import (
-    DeltaDataset,
     LogDistortion,
     NonFiniteRowsWarning,
-    concat_datasets,
     distortions,
     group_values,
     pi1_to_source,
@@ -296,3 +296,9 @@ def test_unlabelled_pairs_predict_target(rec: pd.DataFrame) -> None:
     np.testing.assert_allclose(ds.recover(delta), tgt["F21"].to_numpy(), rtol=1e-12)
     with pytest.raises(ValueError, match="single row"):
         DeltaDataset.from_pairs(rec.iloc[:2], tgt, PI1, INPUTS)
+
+
+def test_old_import_path_of_the_data_set() -> None:
+    assert factors.DeltaDataset is DeltaDataset and factors.concat_datasets is concat_datasets
+    with pytest.raises(AttributeError):
+        _ = factors.NoSuchName

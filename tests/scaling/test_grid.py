@@ -12,7 +12,7 @@ import torch
 from matplotlib.figure import Figure
 
 import scaling.grid as grid_mod
-from scaling.factors import DeltaDataset
+from scaling.delta_dataset import DeltaDataset
 from scaling.grid import DEFAULT_GRID, GridSearch, best_config, config_key, expand_grid
 from scaling.plots import (
     plot_error_vs_load,

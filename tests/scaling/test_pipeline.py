@@ -13,7 +13,7 @@ import pytest
 
 from scaling import evaluation as ev
 from scaling.data import DataBundle
-from scaling.group_choice import AT_REST, EQ10, PI1, admissible_sets, choose_groups, orient_at_rest
+from scaling.group_choice import AT_REST, EQ10, PI1, POSE, admissible_sets, choose_groups, orient_at_rest
 from scaling.groups import PiGroup
 from scaling.pipeline import PipelineConfig, ScalingPipeline, model_specs
 from scaling.run_io import load_run, read_metrics
@@ -61,6 +61,10 @@ def test_choose_groups_orients_sign_changing_forces_upstairs(tiny_frame: pd.Data
     assert "Pf_tilt/F31" in exprs or not any("Pf_tilt" in e for e in exprs)
     assert len(choice.ranking) >= 1 and choice.ranking["rank"].iloc[0] == 1
     assert choose_groups(tiny_frame, "eq23", n_shuffles=2).output == PI1
+    posed = choose_groups(tiny_frame, "eq10+pose", n_shuffles=2)
+    assert posed.inputs[:-2] == choice.inputs and [g.expression() for g in posed.inputs[-2:]] == list(POSE)
+    with pytest.raises(ValueError, match="unknown variable list"):
+        choose_groups(tiny_frame, "eq11")
 
 
 def test_split_reference_and_domain(tiny_frame: pd.DataFrame) -> None:
@@ -78,7 +82,11 @@ def test_split_reference_and_domain(tiny_frame: pd.DataFrame) -> None:
 
 def test_end_to_end_run_writes_a_complete_model_directory(run) -> None:
     result, out = run
-    assert set(result.models) == {"ffnn", "gru-eq10", "gru-eq23", "power-law", "direct-pi", "deep-ensemble"}
+    assert set(result.models) == {"ffnn", "ffnn-pose", "gru-eq10", "gru-eq23", "power-law", "direct-pi",
+                                  "deep-ensemble"}
+    assert result.models["ffnn-pose"].groups_ is not None
+    assert [g["expression"] for g in result.models["ffnn-pose"].groups_["inputs"]][-2:] == ["boom_angle",
+                                                                                           "bucket_pitch"]
     for name in result.models:
         mdir = out / "models" / name
         for f in ("config.json", "weights.safetensors", "metrics.json", "provenance.json", "fit.rrd"):

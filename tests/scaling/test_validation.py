@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 
 from scaletwin_envs.specs import make_loader
-from scaling.factors import DeltaDataset
+from scaling.delta_dataset import DeltaDataset
 from scaling.group_choice import EQ10, PI1
 from scaling.groups import PiGroup
 from scaling.models import DirectPi, PowerLaw
