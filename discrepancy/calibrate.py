@@ -20,6 +20,8 @@ from discrepancy.noise import NoiseModel, NullSpec, sensor_noise, twin_spread
 from discrepancy.plant import Plan, plan
 
 PARAM_JITTER = 0.02  # relative perturbation of fitted parameters in the null runs around a corrected twin
+#: ... per effect where it should differ (none at present).
+JITTER: dict[str, float] = {}
 
 
 @dataclass
@@ -33,8 +35,11 @@ class NullModel:
 
 
 def _jittered(effects: Sequence[Effect], rng: np.random.Generator) -> list[Effect]:
-    return [Effect(e.name, e.target, tuple((k, v * (1.0 + PARAM_JITTER * rng.standard_normal())) for k, v in e.values))
-            for e in effects]
+    out = []
+    for e in effects:
+        size = JITTER.get(e.name, PARAM_JITTER)
+        out.append(Effect(e.name, e.target, tuple((k, v * (1.0 + size * rng.standard_normal())) for k, v in e.values)))
+    return out
 
 
 def _plans(ctx: Context, spec: NullSpec, effects: Sequence[Effect]) -> list[Plan]:

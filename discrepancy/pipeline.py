@@ -165,7 +165,7 @@ def _run(train: EpisodeData, held: list[EpisodeData], spec: TwinSpec, route2: Si
     with timer.step("identify"):
         ident = identify(ctx, found, suspects, IdentifyOptions(opts.max_effects, opts.refine, opts.candidates,
                                                                opts.null, opts.polish, opts.finalists))
-    named = [] if ident.unexplained else ident.effects
+    named = ident.effects
     with timer.step("fit"):
         result = fit(ctx, named, opts.seed, opts.gn_iterations) if named else None
         effects = result.effects if result else []
@@ -184,10 +184,8 @@ def _run(train: EpisodeData, held: list[EpisodeData], spec: TwinSpec, route2: Si
 
 def _reported(ctx: Context, ident: Identification, result: FitResult | None, found: LocateResult
               ) -> list[ReportedEffect]:
-    if ident.unexplained:
-        return [_unexplained(ident, found)] if ident.rounds else []
+    """The accepted effects (fitted), then ``unexplained`` when they (or nothing) leave a residual beyond noise."""
     out = []
-    assert result is not None or not ident.effects
     for k, rnd in enumerate(ident.rounds[: len(ident.effects)]):
         assert result is not None
         e: Effect = result.effects[k]
@@ -195,6 +193,8 @@ def _reported(ctx: Context, ident: Identification, result: FitResult | None, fou
         target = e.target if e.spec.target_kind not in ("payload", "soil") else None
         out.append(ReportedEffect(e.name, target, e.params, result.intervals[k], groups, rnd.confidence,
                                   rnd.confounded))
+    if ident.unexplained and ident.rounds:
+        out.append(_unexplained(ident, found))
     return out
 
 
@@ -202,7 +202,7 @@ def _unexplained(ident: Identification, found: LocateResult) -> ReportedEffect:
     """What no catalogue effect explains: where it shows most, and the closest candidates."""
     located = ident.after.located if ident.after and ident.after.located else found.located
     top = max(located, key=lambda loc: loc.effect_size).signal if located else None
-    first = ident.rounds[0]
-    closest = [first.winner.effect.label(), *first.confounded]
-    explained = max(0.0, min(1.0, first.gain_fraction))
+    last = ident.rounds[len(ident.effects)] if len(ident.rounds) > len(ident.effects) else ident.rounds[-1]
+    closest = [last.winner.effect.label(), *last.confounded]
+    explained = max(0.0, min(1.0, last.gain_fraction))
     return ReportedEffect(UNEXPLAINED, top, {}, {}, {}, float(1.0 - explained), closest[:5])

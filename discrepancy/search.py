@@ -26,7 +26,7 @@ GN_ROUNDS = 3
 #: fragile samples of stiff transients, so the delay is bracketed on these first).
 KINEMATIC = ("lift_extension", "tilt_extension", "boom_angle", "bucket_pitch")
 #: Fine delay scan around the kinematic optimum, in 1/100 of the control step; then a finer one around the best.
-FINE_STEPS = (-10.0, -8.0, -6.0, -5.0, -4.0, -3.0, -2.0, -1.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0)
+FINE_STEPS = (-25.0, -18.0, -12.0, -8.0, -5.0, -3.0, -2.0, -1.0, 1.0, 2.0, 3.0, 5.0, 8.0, 12.0, 18.0, 25.0)
 FINER_STEPS = (-0.5, -0.25, 0.25, 0.5)
 
 

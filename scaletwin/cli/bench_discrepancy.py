@@ -34,6 +34,11 @@ def run(args: argparse.Namespace) -> int:
     if jsonl is not None:
         jsonl.parent.mkdir(parents=True, exist_ok=True)
         jsonl.write_text("")
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    header = (f"# Discrepancy benchmark ({dt.date.today()}, {args.cases} cases, seed {args.seed}, "
+              f"{platform.machine()}, {args.workers} worker(s))")
+    done: list[dict[str, Any]] = []
 
     def progress(result: dict[str, Any]) -> None:
         named = ", ".join(n for n, _ in result["named"]) or "-"
@@ -42,13 +47,12 @@ def run(args: argparse.Namespace) -> int:
         if jsonl is not None:  # written as each case finishes, so an interrupted run keeps what it did
             with jsonl.open("a") as f:
                 f.write(json.dumps(result) + "\n")
+        done.append(result)  # the table so far, rewritten after every case
+        partial = sorted(done, key=lambda r: r["index"])
+        out.write_text(table(partial, f"{header}\n\nPartial: {len(done)} of {args.cases} cases done."))
 
     results = run_bench(args.cases, args.seed, args.workers, progress)
-    header = (f"# Discrepancy benchmark ({dt.date.today()}, {args.cases} cases, seed {args.seed}, "
-              f"{platform.machine()}, {args.workers} worker(s))")
     text = table(results, header)
     print(text)
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(text)
     return 0
