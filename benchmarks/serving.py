@@ -143,6 +143,15 @@ def main() -> None:
         results.append(res)
         print(f"{name}: one row {res['ours_us']:.1f} µs (torch {res['torch_us']:.1f} µs), batch "
               f"{res['ours_rate'] / 1e6:.2f} M rows/s (torch {res['torch_rate'] / 1e6:.2f} M rows/s)", flush=True)
+    text = report(results, args.rows, load_start)
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(text)
+    print(text)
+
+
+def report(results: list[dict[str, Any]], rows: int, load_start: float) -> str:
+    """The Markdown of ``benchmarks/results/serving.md``."""
     info = machine()
     lines = [f"# serving ({dt.datetime.now(dt.UTC):%Y-%m-%d %H:%M} UTC, {info['processor']}, {info['cpus']} CPUs, "
              f"{info['platform']})", "",
@@ -150,7 +159,7 @@ def main() -> None:
              "One prediction = raw SI target quantities → F21 with its interval and extrapolation check "
              "(`predict_row`; GRU: `stream.push`, state carried). Plain torch = the same network's forward pass on "
              "one already-standardised float32 row (`torch.inference_mode`). Batch = "
-             f"`predict_array` on {args.rows} raw SI rows vs one plain `net(Z)` call on their standardised "
+             f"`predict_array` on {rows} raw SI rows vs one plain `net(Z)` call on their standardised "
              "features. Ratio = ours / plain torch (latency: lower is better; throughput: higher is better).", "",
              "| model | one prediction, median [µs] | plain torch [µs] | ratio | ≤ 50 µs | batch [M rows/s] | "
              "plain torch [M rows/s] | ratio | ≥ 1 M rows/s | batch |",
@@ -163,9 +172,7 @@ def main() -> None:
                      f"{'yes' if r['ours_rate'] >= THROUGHPUT_TARGET else 'no'} | {r['batch_note']} |")
     lines += ["", f"Machine load average (1 min): {load_start:.1f} at the start, {os.getloadavg()[0]:.1f} at the end "
               "(2 cores shared with other jobs: above 1 the single thread was competing for its core).", ""]
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text("\n".join(lines))
-    print("\n".join(lines))
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":

@@ -74,12 +74,15 @@ def test_scale_force_reproduces_the_miniature_validation(name: str, models: dict
     mini = model.card["metrics"]["mini"]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", zoo.ExtrapolationWarning)  # gru-eq23: the miniature's x_b/y_b, one load
-        out = model.scale_force(None, mini_rows.drop(columns=["F21"]), hold=mini["hold_steps"])
+        out = model.scale_force(None, mini_rows.drop(columns=["F21"]))  # GRUs: lone rows are held 30 steps
     actual = mini_rows["F21"].to_numpy()
     pct = 100 * (out.force - actual) / actual
     np.testing.assert_allclose(pct, mini["pct_error"], atol=1e-6)
     assert np.mean(np.abs(pct)) == pytest.approx(mini["mean_abs_pct_error"], abs=1e-6)
     assert np.all(out.lower <= out.force) and np.all(out.force <= out.upper)
+    if mini["hold_steps"]:
+        held = model.scale_force(None, mini_rows.drop(columns=["episode"]), hold=mini["hold_steps"])
+        np.testing.assert_allclose(held.force, out.force, rtol=1e-12)
 
 
 @pytest.mark.parametrize("name", SCALING)

@@ -113,14 +113,21 @@ def _run_torch(net: nn.Module, z: np.ndarray) -> np.ndarray:
     return np.concatenate(out).astype(np.float64) if out else np.zeros((0, 1))
 
 
-class MLPKernel:
-    """An :class:`FFNN`: standardise g, MLP, un-standardise → ln δ1."""
+class _SingleNet:
+    """A model with one network and its input/output standardisers (FFNN, GRU)."""
 
-    def __init__(self, model: FFNN) -> None:
+    def __init__(self, model: FFNN | GRUModel) -> None:
         assert model.net_ is not None and model.x_scale_ is not None and model.y_scale_ is not None
         self.net = model.net_.eval()
         self.x_mean, self.x_std = model.x_scale_.mean.astype(float), model.x_scale_.std.astype(float)
         self.y_mean, self.y_std = float(model.y_scale_.mean[0]), float(model.y_scale_.std[0])
+
+
+class MLPKernel(_SingleNet):
+    """An :class:`FFNN`: standardise g, MLP, un-standardise → ln δ1."""
+
+    def __init__(self, model: FFNN) -> None:
+        super().__init__(model)
         self.layers = _linears(self.net)
         self.act = NUMPY_ACTIVATIONS.get(model.activation)
 
@@ -183,14 +190,11 @@ class EnsembleKernel:
         return self._mixture(out)
 
 
-class GRUKernel:
+class GRUKernel(_SingleNet):
     """A :class:`GRUModel`: one step at a time (``step``, NumPy, hidden state carried) or whole sequences."""
 
     def __init__(self, model: GRUModel) -> None:
-        assert model.net_ is not None and model.x_scale_ is not None and model.y_scale_ is not None
-        self.net = model.net_.eval()
-        self.x_mean, self.x_std = model.x_scale_.mean.astype(float), model.x_scale_.std.astype(float)
-        self.y_mean, self.y_std = float(model.y_scale_.mean[0]), float(model.y_scale_.std[0])
+        super().__init__(model)
         gru = self.net.gru
         self.hidden, self.num_layers = gru.hidden_size, gru.num_layers
         self.cells = [tuple(getattr(gru, f"{n}_l{i}").detach().double().numpy().copy()

@@ -33,7 +33,7 @@ import pandas as pd
 from scaling.factors import scaled_variable
 from scaling.groups import PiGroup
 from scaling.models import DeltaModel
-from scaling.validation import model_groups
+from scaling.validation import STATIC_STEPS, model_groups
 from zoo.serving.inputs import InputError, Rows, split_header, to_matrix
 from zoo.serving.kernels import CHUNK, EnsembleKernel, Features, GroupPlan, GRUKernel, kernel_for, normal_quantile
 
@@ -166,8 +166,10 @@ class ScalingModel:
                 (:mod:`zoo.serving.inputs`).
             coverage: interval level (default the card's; residual-quantile intervals exist at the card's levels).
             hold: recurrent models only: treat each target row as the machine held still for ``hold`` steps and
-                report the last step (the miniature validation uses 30). Otherwise a recurrent model runs the rows
-                as time series: one per ``episode`` (sorted by ``t``) if the target has those columns, else one.
+                report the last step. Otherwise a recurrent model runs the rows as time series: one per ``episode``
+                (sorted by ``t``) if the target has those columns, else one. A target made only of lone rows (every
+                episode one row long, as in :func:`scaling.validation.static_rows`) has no history to run, so each
+                row is held for :data:`~scaling.validation.STATIC_STEPS` steps, as in the miniature validation.
 
         Raises:
             InputError: missing quantities, bad units, non-finite values, or a source/target size mismatch.
@@ -179,6 +181,8 @@ class ScalingModel:
         if model._n_source not in (1, len(x)):
             raise InputError(f"source has {model._n_source} rows; give one row or one per target row ({len(x)})")
         seqs = self._sequences(target, len(x)) if self.recurrent and hold is None else None
+        if seqs is not None and all(len(s) == 1 for s in seqs):
+            hold = STATIC_STEPS
         if hold is not None:
             if not self.recurrent:
                 raise InputError("hold applies to recurrent (GRU) models only")
