@@ -24,7 +24,7 @@ from scaletwin_envs.signals import SIGNAL_UNITS
 from scaling import evaluation as ev
 from scaling.data import HELD_OUT, STANDARD, DataBundle, DatasetSpec, load_or_generate
 from scaling.factors import DeltaDataset
-from scaling.group_choice import EQ10, EQ23
+from scaling.group_choice import EQ10, EQ23, POSE
 from scaling.models import DeepEnsemble, DeltaModel, GRUModel, r2_score
 from scaling.pipeline import ModelSpec, PipelineConfig, PipelineResult, Prepared, ScalingPipeline, model_specs
 from scaling.provenance import code_version, machine, to_jsonable
@@ -64,6 +64,8 @@ ENTRIES: tuple[Entry, ...] = (
                                   "carried row to row; held-out residual interval."),
     Entry("gru-eq23", "gru-eq23", "δ1 GRU on the Eq. (23) groups (speeds): sequence model, hidden state carried "
                                   "row to row; held-out residual interval."),
+    Entry("ffnn-pose", "ffnn-pose", "δ1 FFNN on the Eq. (10) groups plus the linkage pose (boom angle, bucket "
+                                    "pitch; our extension): the most accurate model; held-out residual interval."),
     Entry("ensemble-eq10", "deep-ensemble", "δ1 deep ensemble (5 Gaussian MLPs) on the Eq. (10) groups: "
                                             "predictive interval from the ensemble's spread."),
 )
@@ -136,11 +138,11 @@ def in_domain_rows(frame: pd.DataFrame, config: PipelineConfig) -> pd.DataFrame:
 
 def check_table(held: pd.DataFrame) -> pd.DataFrame:
     """The check set shipped with every checkpoint: the first dig cycle of each held-out machine (``held``: its
-    in-domain rows), with ``machine``, ``episode``, ``t`` and the Eq. (10)/(23) signals (SI)."""
+    in-domain rows), with ``machine``, ``episode``, ``t`` and the Eq. (10)/(23) signals and pose angles (SI)."""
     digs = held[held["kind"] == "dig"]
     firsts = digs.groupby("machine")["episode"].min()
     rows = digs[digs["episode"].isin(firsts.to_numpy())]
-    signals = [c for c in SIGNAL_UNITS if c in {**EQ10, **EQ23}]
+    signals = [c for c in SIGNAL_UNITS if c in {**EQ10, **EQ23, **POSE}]
     return rows[["machine", "episode", "t", *signals]].reset_index(drop=True)
 
 

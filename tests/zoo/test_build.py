@@ -13,13 +13,14 @@ from zoo.build import ENTRIES, FFNN_GRID_BEST, BuildConfig, build_zoo, entries, 
 
 
 def test_entries_and_specs():
-    assert [e.name for e in entries()] == ["ffnn-eq10", "gru-eq10", "gru-eq23", "ensemble-eq10"]
+    assert [e.name for e in entries()] == ["ffnn-eq10", "gru-eq10", "gru-eq23", "ffnn-pose", "ensemble-eq10"]
     with pytest.raises(ValueError, match="unknown zoo entries"):
         entries(["nope"])
     specs = {s.name: s for s in zoo_specs(ENTRIES, FFNN_GRID_BEST)}
     assert specs["ffnn"].cls == "FFNN" and specs["ffnn"].groups == "eq10"
     assert all(specs["ffnn"].config[k] == v for k, v in FFNN_GRID_BEST.items())
     assert specs["gru-eq23"].groups == "eq23" and specs["deep-ensemble"].cls == "DeepEnsemble"
+    assert specs["ffnn-pose"].groups == "eq10+pose" and specs["ffnn-pose"].config["units"] == 64
 
 
 @pytest.mark.slow

@@ -78,7 +78,7 @@ def test_predict_errors_are_one_line(check: pd.DataFrame, tmp_path: Path, capsys
 def test_zoo_list_and_show(capsys: pytest.CaptureFixture[str]):
     assert main(["zoo", "list", "--kind", "scaling-model"]) == 0
     out = capsys.readouterr().out
-    assert all(name in out for name in ("ffnn-eq10", "gru-eq10", "gru-eq23", "ensemble-eq10"))
+    assert all(name in out for name in ("ffnn-eq10", "gru-eq10", "gru-eq23", "ffnn-pose", "ensemble-eq10"))
     assert main(["zoo", "show", "gru-eq23", "--verify"]) == 0
     out = capsys.readouterr().out
     assert "verified" in out and "F21/F31" in out and "held_out" in out
