@@ -95,4 +95,7 @@ def test_full_reproduction(tmp_path: Path) -> None:
     metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
     assert metrics["models"]["ffnn"]["r2_dig"] > 0.95
     assert metrics["mini"]["models"]["ffnn"]["mean_abs_pct_error"] < 5.0
+    assert metrics["models"]["ffnn-pose"]["r2_dig"] >= 0.99  # issue 5's FFNN target, with the pose groups
+    assert metrics["mini"]["models"]["ffnn-pose"]["mean_abs_pct_error"] <= 2.0
+    assert min(metrics["models"]["gru-eq10"]["r2_dig"], metrics["models"]["gru-eq23"]["r2_dig"]) >= 0.95
     assert "## Targets" in report
