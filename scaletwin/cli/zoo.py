@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from scaletwin.cli import CommandError
@@ -115,7 +116,7 @@ def run_show(args: argparse.Namespace) -> int:
     table.add_column("field")
     table.add_column("value", overflow="fold")
     for key, value in scaling_rows(card):
-        table.add_row(key, value)
+        table.add_row(key, escape(value))  # units in brackets are not rich markup
     for key in ("description", "algorithm", "env_id", "env_kwargs", "policy_kwargs", "seed", "created", "versions",
                 "files"):
         if key in card:
