@@ -67,6 +67,30 @@ def test_units_are_converted(ffnn: zoo.ScalingModel, rows: pd.DataFrame):
     as_dict = {c: scaled[c].to_numpy() for c in scaled.columns}
     np.testing.assert_allclose(ffnn.scale_force(None, as_dict).force, si.force, rtol=1e-9)
     np.testing.assert_allclose(ffnn.scale_force(None, _si(ffnn, rows)).force, si.force, rtol=1e-12)
+    records = scaled.to_dict("records")
+    np.testing.assert_allclose(ffnn.scale_force(ffnn.reference.to_dict(), records).force, si.force, rtol=1e-9)
+
+
+def test_recording_target(ffnn: zoo.ScalingModel, tmp_path: Path):
+    """A scaletwin recording (its own SI units) as the target: F21 is scaled from the reference row."""
+    import gymnasium as gym
+
+    import scaletwin_envs
+    from scaletwin_envs.policies import ScriptedDigPolicy
+    from scaletwin_envs.recording import record_episode
+
+    env = gym.make(scaletwin_envs.ENV_ID, scale=1.2)
+    try:
+        rec = record_episode(env, ScriptedDigPolicy(), seed=0, max_steps=60)
+    finally:
+        env.close()
+    path = rec.to_parquet(tmp_path / "target.parquet")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", zoo.ExtrapolationWarning)
+        direct = ffnn.scale_force(None, rec)
+        from_file = ffnn.scale_force(None, zoo.serving.read_table(path))
+    np.testing.assert_allclose(direct.force, from_file.force, rtol=1e-12)
+    assert len(direct) == len(rec) and np.all(np.isfinite(direct.force))
 
 
 def test_source_in_other_units_gives_the_same_force(ffnn: zoo.ScalingModel, rows: pd.DataFrame):

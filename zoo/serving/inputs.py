@@ -5,7 +5,9 @@ Accepted forms of the rows of a machine (source or target):
 * a :class:`pandas.DataFrame` (or a CSV/Parquet file, :func:`read_table`) whose columns are either ``name [unit]``
   (e.g. ``F31 [kN]``, ``x_b [mm]``; converted to SI with pint) or plain ``name`` in SI (the units of
   :data:`scaletwin_envs.signals.SIGNAL_UNITS`; a frame's ``attrs["units"]``, as recordings carry, is checked);
-* a mapping ``{name or "name [unit]": value or array}`` (one row per element), or a :class:`pandas.Series` (one row);
+* a scaletwin :class:`~scaletwin_envs.recording.Recording` (its SI table and units);
+* a mapping ``{name or "name [unit]": value or array}`` (one row per element), a list of such mappings (one per
+  row), or a :class:`pandas.Series` (one row);
 * a NumPy array of shape ``(n, v)`` or ``(v,)`` whose columns are the model's variables in order, SI.
 
 Every problem is a :class:`InputError` (a ``ValueError``) naming the column: missing quantities, units of the wrong
@@ -25,11 +27,12 @@ import pint
 import pyarrow.parquet as pq
 
 from scaletwin_envs.recording.importer import to_si
-from scaletwin_envs.recording.recording import read_recording
+from scaletwin_envs.recording.recording import Recording, read_recording
 from scaletwin_envs.recording.schema import METADATA_KEY
 from scaletwin_envs.signals import SIGNAL_UNITS
 
-Rows = pd.DataFrame | pd.Series | Mapping[str, Any] | np.ndarray | Sequence[float]
+Rows = (pd.DataFrame | pd.Series | Mapping[str, Any] | Sequence[Mapping[str, Any]] | Recording | np.ndarray
+        | Sequence[float])
 _HEADER = re.compile(r"^\s*(?P<name>[^\[\]]+?)\s*\[(?P<unit>[^\[\]]*)\]\s*$")
 
 
@@ -103,8 +106,12 @@ def to_matrix(rows: Rows, variables: Sequence[str], what: str = "target") -> np.
     Raises:
         InputError: as :func:`column_plan`, plus non-numeric or non-finite values (NaN, inf) and bad shapes.
     """
-    if isinstance(rows, pd.Series):
+    if isinstance(rows, Recording):
+        rows = recording_frame(rows)
+    elif isinstance(rows, pd.Series):
         rows = rows.to_frame().T
+    elif isinstance(rows, list) and rows and all(isinstance(r, Mapping) for r in rows):
+        rows = pd.DataFrame(rows)
     if isinstance(rows, pd.DataFrame):
         idx, factor = column_plan(list(rows.columns), variables, rows.attrs.get("units"), what)
         values = _numeric([rows.iloc[:, i] for i in idx], variables, what)
@@ -168,11 +175,15 @@ def read_table(path: str | Path) -> pd.DataFrame:
     if suffix != ".parquet":
         raise InputError(f"{path.name}: use a .csv or .parquet file")
     if METADATA_KEY in (pq.read_schema(path).metadata or {}):
-        rec = read_recording(path)
-        frame = rec.data.copy()
-        frame.attrs["units"] = dict(rec.units)
-        return frame
+        return recording_frame(read_recording(path))
     return pd.read_parquet(path)
+
+
+def recording_frame(recording: Recording) -> pd.DataFrame:
+    """A recording's table with its units in ``attrs["units"]``."""
+    frame = recording.data.copy()
+    frame.attrs["units"] = dict(recording.units)
+    return frame
 
 
 def write_table(frame: pd.DataFrame, path: str | Path) -> Path:
