@@ -57,6 +57,7 @@ def run(args: argparse.Namespace) -> int:
                                "with --source-row, or give one source row per target row")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", zoo.ExtrapolationWarning)
+        warnings.simplefilter("always", zoo.SourceWarning)
         try:
             result = model.scale_force(source, target, coverage=args.coverage, hold=args.hold)
         except InputError as exc:

@@ -178,6 +178,20 @@ def test_ensemble_interval_widens_with_coverage(ensemble: zoo.ScalingModel, rows
     assert narrow.interval_method == "ensemble" and wide.coverage == 0.99
 
 
+def test_source_other_than_the_reference_warns(ffnn: zoo.ScalingModel, rows: pd.DataFrame):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", zoo.SourceWarning)
+        ffnn.scale_force(ffnn.reference, rows)  # the reference itself: no warning
+    other = ffnn.reference.copy()
+    other["Pf_tilt"] *= 1.5
+    with pytest.warns(zoo.SourceWarning, match="Pf_tilt/F31"):
+        ffnn.scale_force(other, rows)
+    other = ffnn.reference.copy()
+    other["F21"] *= 1.1
+    with pytest.warns(zoo.SourceWarning, match="π1"):
+        ffnn.scale_force(other, rows)
+
+
 def test_paired_sources_row_by_row(ffnn: zoo.ScalingModel, rows: pd.DataFrame):
     same = pd.DataFrame([ffnn.reference] * len(rows))
     np.testing.assert_allclose(ffnn.scale_force(same, rows).force, ffnn.scale_force(None, rows).force, rtol=1e-12)

@@ -54,6 +54,11 @@ class ExtrapolationWarning(UserWarning):
     """The target's distortions lie outside the range the model was trained on: the prediction is extrapolated."""
 
 
+class SourceWarning(UserWarning):
+    """The source row differs from the calibrated reference row the model learnt δ1 against (``model.reference``):
+    δ1 = π1(source)/π1(target) was only ever learnt for that source, so predictions from another one are biased."""
+
+
 @dataclass
 class ScaledForce:
     """Scaled force per target row (SI): ``force`` (e.g. F21, N) with its ``lower``/``upper`` interval at
@@ -112,11 +117,13 @@ class ScalingModel:
                            for c, q in interval.get("log_delta_residual_quantiles", {}).items()}
         rng = card["training_range"]
         g_min, g_max = np.asarray(rng["min"], dtype=float), np.asarray(rng["max"], dtype=float)
-        margin = float(rng.get("margin", 0.0)) * (g_max - g_min)
-        self._g_lo, self._g_hi = g_min - margin, g_max + margin
+        self._margin = float(rng.get("margin", 0.0)) * (g_max - g_min)
+        self._g_lo, self._g_hi = g_min - self._margin, g_max + self._margin
         self._group_names = [g.expression() for g in inputs]
         self._row_spread = self._spread(None)
+        self._h_reference: np.ndarray | None = None
         self.bind(self.reference)
+        self._h_reference, self._pi1_reference = self._features.h_source, self._pi1_source
 
     # ------------------------------------------------------------------------------------------------ source
 
@@ -148,7 +155,22 @@ class ScalingModel:
         self._features = Features.build(eps, sign, vals[0, :-1] if one else vals[:, :-1])
         self._pi1_source = float(pi1[0]) if one else pi1
         self._n_source = len(x)
+        if self._h_reference is not None:
+            self._check_source(vals)
         return self
+
+    def _check_source(self, vals: np.ndarray) -> None:
+        """Warn when a source's groups differ from the reference's (features beyond the range margin, π1 by 0.1 %)."""
+        h = np.atleast_2d(self._features.h_source)
+        tol = self._margin
+        off = (np.abs(h - self._h_reference) > tol).any(axis=0)
+        pi1_off = np.abs(vals[:, -1] / self._pi1_reference - 1.0) > 1e-3
+        if off.any() or pi1_off.any():
+            names = [n for n, o in zip(self._group_names, off, strict=True) if o] + (["π1"] if pi1_off.any() else [])
+            warnings.warn(f"{self.name}: the source differs from the calibrated reference row the model was trained "
+                          f"against (model.reference; groups {', '.join(names)}): δ1 was learnt relative to that row "
+                          "only, so predictions from this source are biased; pass source=None to use it",
+                          SourceWarning, stacklevel=4)
 
     def with_source(self, source: Rows) -> ScalingModel:
         """A copy bound to another source (this model keeps its own)."""
@@ -342,7 +364,7 @@ class ScalingModel:
                   for name, lo, hi in zip(self._group_names, below, above, strict=True) if lo or hi]
         warnings.warn(f"{self.name}: {n_out} of {n} target rows have distortions outside the training range "
                       f"(groups {', '.join(groups)}); the scaled {self.variable} is extrapolated",
-                      ExtrapolationWarning, stacklevel=3)
+                      ExtrapolationWarning, stacklevel=4)
 
     def _sequences(self, target: Rows, n: int) -> list[np.ndarray] | None:
         """One index array per ``episode`` of a target frame, in ``t`` (or ``time``) order; None: one sequence."""
