@@ -45,15 +45,19 @@ def main() -> None:
     torch.set_num_threads(1)
     load_start = os.getloadavg()[0]
     frame, data_s = timed(load_or_generate, args.data, STANDARD, "serial", False)
-    config = PipelineConfig(models=model_specs(["ffnn", "direct-pi"]))
+    config = PipelineConfig(models=model_specs(["ffnn", "ffnn-pose", "direct-pi"]))
     pipeline = ScalingPipeline(config)
     prep, prep_s = timed(pipeline.prepare, frame)
     train, test = prep.sets["eq10"]
     direct, direct_s = timed(DirectPi(rel_eps=config.rel_eps).fit, train)
     ffnn_spec = model_specs(["ffnn"])[0]
     ffnn, ffnn_s = timed(ffnn_spec.build(rel_eps=config.rel_eps, seed=0, threads=1).fit, train)
+    pose_spec = model_specs(["ffnn-pose"])[0]
+    pose_train, pose_test = prep.sets[pose_spec.groups]
+    posed, pose_s = timed(pose_spec.build(rel_eps=config.rel_eps, seed=0, threads=1).fit, pose_train)
     kinds = ev.kinds_of(test, prep.frame)
     r2 = {name: ev.delta_metrics(model, test, kinds) for name, model in (("direct", direct), ("ffnn", ffnn))}
+    r2["ffnn-pose"] = ev.delta_metrics(posed, pose_test, ev.kinds_of(pose_test, prep.frame))
     grid_train, grid_val = train.split_by_episode(0.2, 0)
     base = {k: v for k, v in FFNN_CONFIG.items() if k not in DEFAULT_GRID} | {"rel_eps": config.rel_eps, "seed": 0,
                                                                                 "threads": 1}
@@ -76,6 +80,9 @@ def main() -> None:
              f"| FFNN fit ({ffnn_spec.config['hidden_layers']}×{ffnn_spec.config['units']}, 1 thread, "
              f"{ffnn.log_.epochs_run} epochs) | 1 | {ffnn_s:.1f} | {ffnn_s:.1f} | 60 s | "
              f"{'yes' if ffnn_s <= 60 else 'no'} | {r2['ffnn']['r2_dig']:.4f} / {r2['ffnn']['r2']:.4f} |",
+             f"| FFNN fit on Eq. (10) + pose (`ffnn-pose`, 1 thread, {posed.log_.epochs_run} epochs) | 1 | "
+             f"{pose_s:.1f} | {pose_s:.1f} | 60 s | {'yes' if pose_s <= 60 else 'no'} | "
+             f"{r2['ffnn-pose']['r2_dig']:.4f} / {r2['ffnn-pose']['r2']:.4f} |",
              f"| direct-Pi over the grid's validation split | {n} | {direct_grid_s:.3f} | {direct_grid_s / n:.4f} | - "
              f"| - | all rows {direct_grid[0]:.4f} (validation) |",
              f"| FFNN default grid, {args.workers} worker processes | {n} | {grid_s:.0f} | {grid_s / n:.1f} | 900 s | "
