@@ -4,9 +4,10 @@
 
 Files are CSV or Parquet with ``name [unit]`` headers (any unit pint converts, e.g. ``F31 [kN]``, ``x_b [mm]``) or
 scaletwin recordings. The source is one row of the calibrated machine (``--source-row``, default: the file's only
-row) or one row per target row; without ``--source`` the model's own calibrated reference row is used. The output
-holds the target's ``episode``/``t``/``time`` columns (if any) and ``F21 [N]``, ``F21_lower [N]``,
-``F21_upper [N]``, ``delta1 [1]``, ``extrapolated``; it is printed as CSV when ``--out`` is not given.
+row; of a longer recording, the row closest to the model's calibrated reference row) or one row per target row;
+without ``--source`` the model's own calibrated reference row is used. The output holds the target's
+``machine``/``episode``/``t``/``time`` columns (if any) and ``F21 [N]``, ``F21_lower [N]``, ``F21_upper [N]``,
+``delta1 [1]``, ``extrapolated``; it is printed as CSV when ``--out`` is not given.
 """
 
 from __future__ import annotations
@@ -53,8 +54,13 @@ def run(args: argparse.Namespace) -> int:
                 raise CommandError(f"--source-row {args.source_row} is outside the {len(source)} source rows")
             source = source.iloc[[args.source_row]]
         elif len(source) not in (1, len(target)):
-            raise CommandError(f"--source has {len(source)} rows and --target {len(target)}: pick one source row "
-                               "with --source-row, or give one source row per target row")
+            try:
+                row = model.nearest_source_row(source)
+            except InputError as exc:
+                raise CommandError(str(exc)) from exc
+            print(f"scaletwin predict: source row {row} of {len(source)} (the closest to the model's calibrated "
+                  "reference row; choose another with --source-row)", file=sys.stderr)
+            source = source.iloc[[row]]
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", zoo.ExtrapolationWarning)
         warnings.simplefilter("always", zoo.SourceWarning)

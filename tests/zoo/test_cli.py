@@ -62,6 +62,21 @@ def test_predict_with_source_file_and_stdout(check: pd.DataFrame, tmp_path: Path
     np.testing.assert_allclose(result["F21 [N]"], model.scale_force(None, check.head(10)).force, rtol=1e-9)
 
 
+def test_predict_picks_the_source_row_closest_to_the_reference(check: pd.DataFrame, tmp_path: Path,
+                                                                 capsys: pytest.CaptureFixture[str]):
+    model = zoo.load("ffnn-eq10")
+    ref = {k: model.reference[k] for k in model.source_variables}
+    rows = [{k: v * (1.2 if k == "Pf_tilt" else 1.0) for k, v in ref.items()}, ref, {**ref, "F21": ref["F21"] * 0.9}]
+    source = tmp_path / "er12.csv"
+    pd.DataFrame(rows * 2).iloc[:5].to_csv(source, index=False)
+    target = _target_file(check.head(7), tmp_path / "target.csv")
+    out = tmp_path / "out.csv"
+    assert main(["predict", "--model", "ffnn-eq10", "--target", str(target), "--source", str(source), "--out",
+                 str(out)]) == 0
+    assert "source row 1 of 5" in capsys.readouterr().err
+    np.testing.assert_allclose(pd.read_csv(out)["F21 [N]"], model.scale_force(None, check.head(7)).force, rtol=1e-9)
+
+
 def test_predict_errors_are_one_line(check: pd.DataFrame, tmp_path: Path, capsys: pytest.CaptureFixture[str]):
     target = tmp_path / "bad.csv"
     check.drop(columns=["F21 [N]", "Pf_lift [N]"]).to_csv(target, index=False)

@@ -59,6 +59,9 @@ def _inside(model: zoo.ScalingModel, frame: pd.DataFrame) -> np.ndarray:
 
 def test_units_are_converted(ffnn: zoo.ScalingModel, rows: pd.DataFrame):
     si = ffnn.scale_force(None, rows)
+    lower, upper = si.interval
+    assert np.all(lower < si.force) and np.all(si.force < upper) and si.coverage == 0.9
+    assert list(si.to_frame().columns[:3]) == ["F21 [N]", "F21_lower [N]", "F21_upper [N]"]
     scaled = rows.copy()
     scaled["F31"] = scaled["F31"] / 1000.0
     scaled["x_b"] = scaled["x_b"] * 1000.0

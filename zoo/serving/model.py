@@ -77,6 +77,11 @@ class ScaledForce:
     def __len__(self) -> int:
         return len(self.force)
 
+    @property
+    def interval(self) -> tuple[np.ndarray, np.ndarray]:
+        """(lower, upper) bounds of the force at :attr:`coverage` (SI)."""
+        return self.lower, self.upper
+
     def to_frame(self) -> pd.DataFrame:
         """Columns ``F21 [N]``, ``F21_lower [N]``, ``F21_upper [N]``, ``delta1 [1]``, ``extrapolated``."""
         v, u = self.variable, self.unit
@@ -172,6 +177,18 @@ class ScalingModel:
                           "only, so predictions from this source are biased; pass source=None to use it",
                           SourceWarning, stacklevel=4)
 
+    def nearest_source_row(self, rows: Rows) -> int:
+        """Position of the row of ``rows`` (e.g. a whole source recording) closest to :attr:`reference` in the
+        model's features (max-norm of the asinh group coordinates; π1 > 0 and finite groups only)."""
+        x = to_matrix(rows, self.source_variables, "source")
+        vals = self._plan_s.values(x)
+        ok = np.all(np.isfinite(vals), axis=1) & (vals[:, -1] > 0)
+        if not ok.any():
+            raise InputError("source: no row has finite groups and π1 > 0")
+        h = self._features.sign * np.arcsinh(vals[:, :-1] * self._features.scale)
+        dist = np.where(ok, np.max(np.abs(h - self._h_reference), axis=1), np.inf)
+        return int(np.argmin(dist))
+
     def with_source(self, source: Rows) -> ScalingModel:
         """A copy bound to another source (this model keeps its own)."""
         return copy.copy(self).bind(source)
@@ -201,7 +218,8 @@ class ScalingModel:
         if source is not None:
             model = self.with_source(source)
         if model._n_source not in (1, len(x)):
-            raise InputError(f"source has {model._n_source} rows; give one row or one per target row ({len(x)})")
+            raise InputError(f"source has {model._n_source} rows; give one row (e.g. the one "
+                             f"model.nearest_source_row(source) picks) or one per target row ({len(x)})")
         seqs = self._sequences(target, len(x)) if self.recurrent and hold is None else None
         if seqs is not None and all(len(s) == 1 for s in seqs):
             hold = STATIC_STEPS
