@@ -127,6 +127,8 @@ def test_bad_source_and_arrays_are_clear_errors(ffnn: zoo.ScalingModel, rows: pd
         ffnn.predict_row([np.nan] * len(ffnn.target_variables))
     with pytest.raises(zoo.InputError, match="coverage"):
         ffnn.scale_force(None, rows, coverage=0.77)
+    with pytest.raises(zoo.InputError, match="no rows"):
+        ffnn.scale_force(None, rows.head(0))
 
 
 # ------------------------------------------------------------------------------------------------ extrapolation

@@ -241,6 +241,8 @@ class ScalingModel:
         ``pick``: keep only the last row of every ``pick`` rows (used by ``hold``).
         """
         n = len(x)
+        if n == 0:
+            raise InputError("target: no rows")
         spread = self._spread(coverage)
         parts = []
         if isinstance(self.kernel, GRUKernel):
