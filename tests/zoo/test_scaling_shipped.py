@@ -107,3 +107,18 @@ def test_ffnn_configuration_is_the_grid_winner():
     assert {k: best[k] for k in FFNN_GRID_BEST} == FFNN_GRID_BEST
     config = zoo.card("ffnn-eq10")["model"]["config"]
     assert {k: config[k] for k in FFNN_GRID_BEST} == FFNN_GRID_BEST
+
+
+def test_loading_never_unpickles(monkeypatch: pytest.MonkeyPatch):
+    """Every shipped checkpoint loads with pickle and torch.load disabled (JSON and safetensors only)."""
+    import pickle
+
+    import torch
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("unpickling attempted")
+
+    for target, name in ((pickle, "load"), (pickle, "loads"), (torch, "load")):
+        monkeypatch.setattr(target, name, refuse)
+    for name in zoo.list():
+        assert zoo.load(name).card["name"] == name
