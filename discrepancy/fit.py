@@ -30,6 +30,12 @@ FD_LOG = 0.005  # small: the objective has jumps (fragile moments) a few per cen
 FD_LINEAR = 0.005
 SCAN = (-0.3, -0.15, -0.07, -0.03, -0.01, 0.01, 0.03, 0.07, 0.15, 0.3)  # relative (log) offsets of the scan
 FINE_SCAN = (-0.004, 0.004)
+#: Dense scans of the accepted effects before another is added: the objective is a comb (stick-slip, valve and
+#: contact events) with narrow dips a few per cent apart, and a near miss leaves a residual that a sibling effect
+#: would otherwise "explain".
+DENSE_SCAN = (-0.05, -0.035, -0.025, -0.018, -0.012, -0.008, -0.005, -0.0025, 0.0025, 0.005, 0.008, 0.012, 0.018,
+              0.025, 0.035, 0.05)
+DENSE_FINE = (-0.0015, -0.0008, 0.0008, 0.0015)
 #: Relative resolution of a fitted parameter: the objective is rough on this scale (twin moments that jump), so an
 #: interval is never narrower than ± this (in log Π, or relative for signed parameters).
 RESOLUTION = 0.02
@@ -117,10 +123,12 @@ def _solve(jac: np.ndarray, w: np.ndarray, z: np.ndarray) -> np.ndarray:
     return np.linalg.solve(a + lam * np.eye(len(a)), -jac.T @ (w * z))
 
 
-def scan(ctx: Context, effects: Sequence[Effect], first: int) -> tuple[list[Effect], float]:
+def scan(ctx: Context, effects: Sequence[Effect], first: int,
+         passes: Sequence[Sequence[float]] = (SCAN, FINE_SCAN)) -> tuple[list[Effect], float]:
     """Coordinate scans of every parameter (those of ``effects[first]`` first) at a few relative offsets, then
-    finer ones around the best: the objective has jumps (fragile moments) that trap a purely local method a few
-    per cent off, and effects found earlier may have absorbed part of a later one."""
+    finer ones around the best (``passes``: log offsets, or relative for signed parameters): the objective has
+    jumps (fragile moments) that trap a purely local method a few per cent off, and effects found earlier may
+    have absorbed part of a later one."""
     effects = list(effects)
     coords = _coordinates(effects)
     u = _to_u(effects, coords, ctx)
@@ -129,7 +137,7 @@ def scan(ctx: Context, effects: Sequence[Effect], first: int) -> tuple[list[Effe
     order = sorted(range(len(coords)), key=lambda i: coords[i].effect != first)
     for i in order:
         c = coords[i]
-        for offsets in (SCAN, FINE_SCAN):
+        for offsets in passes:
             scale = 1.0 if c.log else max(abs(u[i]), 1e-3)
             points = [np.clip(u + o * scale * np.eye(len(u))[i], bounds[:, 0], bounds[:, 1]) for o in offsets]
             costs = [ctx.cost(m) for m in ctx.simulate_many([_from_u(p, effects, coords, ctx) for p in points])]

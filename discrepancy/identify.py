@@ -20,7 +20,7 @@ import numpy as np
 from discrepancy.calibrate import calibrate
 from discrepancy.context import DIVERGED, Context, huber
 from discrepancy.effects import Effect
-from discrepancy.fit import polish, scan
+from discrepancy.fit import DENSE_FINE, DENSE_SCAN, polish, scan
 from discrepancy.locate import LocateResult, locate
 from discrepancy.noise import NullSpec
 from discrepancy.screen import REFINE, Trial, physics_trials
@@ -136,6 +136,16 @@ def identify(ctx: Context, located: LocateResult, suspects: set[str], opts: Iden
     current, cost = located, out.start_cost
     tolerable = False  # what is left after the accepted effects may be put down to fit imprecision
     while len(out.effects) < opts.max_effects:
+        if out.effects:  # a near miss of the accepted effects must not pass for a further effect
+            refit, refit_cost = scan(ctx, out.effects, 0, (DENSE_SCAN, DENSE_FINE))
+            if refit_cost < cost - MIN_GAIN:
+                after, judge = _judge(ctx, [], refit, opts.null)
+                out.effects, out.after, current, cost = refit, after, after, refit_cost
+                out.final_cost = cost
+                if not after.located:
+                    return out
+                tolerable = judge.removed >= EXPLAINED and (len(after.located) <= _tolerated(located)
+                                                            or not _strong(after))
         rnd = _round(ctx, out.effects, cost, current, suspects, opts)
         if rnd is None:
             break

@@ -4,7 +4,7 @@ them in parallel.
 
 * :class:`ZoomSearch` (one parameter, in log Π when positive): a bracket around the best grid point halves
   around the best point each round; a parabola ends it.
-* :class:`DelaySearch` (dead times): the zoom on kinematic channels, then a fine scan of the full objective.
+* :class:`DelaySearch` (dead times): zooms on kinematic channels and on the full objective, then fine scans.
 * :class:`GaussNewtonSearch` (several parameters: the payload's centre of mass): finite-difference Jacobian of
   the whitened residual, a damped Gauss–Newton step and a halved step.
 """
@@ -127,18 +127,21 @@ def _lowest(entries: Sequence[tuple[np.ndarray, float]]) -> tuple[np.ndarray, fl
     return u.copy(), float(c)
 
 
+def _bracket(entries: Sequence[tuple[np.ndarray, float]], bounds: np.ndarray) -> list[np.ndarray]:
+    """The midpoints between the best 1-D point of ``entries`` and its neighbours (or the bounds)."""
+    pts = sorted(entries, key=lambda s: float(s[0][0]))
+    xs = [float(p[0][0]) for p in pts]
+    k = int(np.argmin([p[1] for p in pts]))
+    lo = xs[k - 1] if k > 0 else bounds[0, 0]
+    hi = xs[k + 1] if k < len(xs) - 1 else bounds[0, 1]
+    return [np.array([0.5 * (lo + xs[k])]), np.array([0.5 * (xs[k] + hi)])]
+
+
 class ZoomSearch(_Tracked):
     """1-D bracket zoom in log Π (see module docstring)."""
 
     def propose(self) -> list[np.ndarray]:
-        if self.rounds >= ZOOM_ROUNDS:
-            return []
-        pts = sorted(self.seen, key=lambda s: float(s[0][0]))
-        xs = [float(p[0][0]) for p in pts]
-        k = int(np.argmin([p[1] for p in pts]))
-        lo = xs[k - 1] if k > 0 else self.bounds[0, 0]
-        hi = xs[k + 1] if k < len(xs) - 1 else self.bounds[0, 1]
-        return [np.array([0.5 * (lo + xs[k])]), np.array([0.5 * (xs[k] + hi)])]
+        return _bracket(self.seen, self.bounds) if self.rounds < ZOOM_ROUNDS else []
 
     def update(self, points: list[np.ndarray], costs: list[float], z: list[np.ndarray]) -> None:
         self.record(points, costs)
@@ -162,8 +165,10 @@ class ZoomSearch(_Tracked):
 
 
 class DelaySearch(ZoomSearch):
-    """Dead time: zoom on the kinematic channels only (a smooth bowl around the true delay), then scan the full
-    objective finely around it (it is sharp: samples taken just after a delayed valve switch)."""
+    """Dead time: two bracket zooms in lockstep, one on the kinematic channels (a smooth bowl around the true
+    delay where they show it) and one on the full objective (V-shaped with a sharp tip: samples taken just after a
+    delayed valve switch; it also sees delays the kinematic channels barely show), then fine scans of the full
+    objective around its best point."""
 
     focus: np.ndarray
     control_dt: float
@@ -178,14 +183,22 @@ class DelaySearch(ZoomSearch):
         self.fine = 0
 
     def _focus_cost(self, z: np.ndarray) -> float:
-        return float(np.sum(huber(z[:, self.focus]))) if z.size else float("inf")
+        """Objective on the kinematic channels, each with its mean residual removed: a sensor bias on one of them
+        would otherwise drag the bracket (at the true delay only the bias and noise are left either way)."""
+        if not z.size:
+            return float("inf")
+        zf = z[:, self.focus]
+        return float(np.sum(huber(zf - np.nanmean(zf, axis=0))))
 
     def propose(self) -> list[np.ndarray]:
-        if self.rounds < ZOOM_ROUNDS:
-            return super().propose()
+        if self.rounds < ZOOM_ROUNDS:  # two brackets: kinematic channels, and the full objective (sharp, V-shaped)
+            kinematic = super().propose()
+            full = [u for u in _bracket(self.full + self.screened, self.bounds)
+                    if all(abs(float(u[0]) - float(k[0])) > 1e-9 for k in kinematic)]
+            return kinematic + full
         if self.fine >= 2:
             return []
-        center = float(np.exp(super().vertex()[0] if self.fine == 0 else _lowest(self.full)[0][0]))
+        center = float(np.exp(_lowest(self.full + self.screened)[0][0]))
         step = self.control_dt / 100.0 / self.froude_time
         offsets = FINE_STEPS if self.fine == 0 else FINER_STEPS
         pts = [center] if self.fine == 0 else []
@@ -194,11 +207,11 @@ class DelaySearch(ZoomSearch):
         return [np.array([np.clip(np.log(p), lo, hi)]) for p in pts]
 
     def update(self, points: list[np.ndarray], costs: list[float], z: list[np.ndarray]) -> None:
+        self.full.extend(zip(points, costs, strict=True))
         if self.rounds < ZOOM_ROUNDS:
             self.record(points, [self._focus_cost(zz) for zz in z])
             self.rounds += 1
         else:
-            self.full.extend(zip(points, costs, strict=True))
             self.fine += 1
 
     @property
