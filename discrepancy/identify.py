@@ -28,6 +28,9 @@ from discrepancy.sensors import sensor_trials
 
 FINALISTS = 2  # best trials scanned and polished (with the effects accepted so far) before the winner is chosen
 MAX_EFFECTS = 3
+#: No further selection round starts once this many twin replays are spent (a round costs ~100-200): keeps one
+#: diagnosis within about a minute on 2 cores; what is left then is reported as ``unexplained``.
+BUDGET = 450
 POLISH = 2  # Gauss–Newton steps on all accepted effects before judging what is left
 MIN_GAIN = 25.0  # objective decrease a winner must bring (whitened units: far beyond a chance fit)
 MIN_FIRST = 0.3  # the first effect must remove at least this fraction of the excess residual
@@ -44,7 +47,8 @@ class IdentifyOptions:
     """Knobs of the selection: at most ``max_effects`` effects, ``refine`` candidates refined per round, the
     catalogue restricted to ``candidates`` (effect names or labels such as ``coulomb_friction[boom_hinge]``;
     None: all), the null spec of the re-calibration after each round, Gauss–Newton steps before judging, and
-    how many close rivals are refitted before the winner of a round is chosen."""
+    how many close rivals are refitted before the winner of a round is chosen; no round starts after ``budget``
+    twin replays."""
 
     max_effects: int = MAX_EFFECTS
     refine: int = REFINE
@@ -52,6 +56,7 @@ class IdentifyOptions:
     null: NullSpec | None = None
     polish: int = POLISH
     finalists: int = FINALISTS
+    budget: int = BUDGET
 
     def allows(self, name: str, target: str | None) -> bool:
         label = f"{name}[{target}]" if target else name
@@ -136,6 +141,8 @@ def identify(ctx: Context, located: LocateResult, suspects: set[str], opts: Iden
     current, cost = located, out.start_cost
     tolerable = False  # what is left after the accepted effects may be put down to fit imprecision
     while len(out.effects) < opts.max_effects:
+        if out.effects and ctx.replays.runs >= opts.budget:
+            break
         if out.effects:  # a near miss of the accepted effects must not pass for a further effect
             refit, refit_cost = scan(ctx, out.effects, 0, (DENSE_SCAN, DENSE_FINE))
             if refit_cost < cost - MIN_GAIN:

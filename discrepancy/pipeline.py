@@ -18,7 +18,7 @@ from discrepancy.context import Context
 from discrepancy.effects import UNEXPLAINED, Effect
 from discrepancy.episode import EpisodeData, RecordingError, from_recording, load_episode
 from discrepancy.fit import GN_ITERATIONS, Comparison, FitResult, compare, fit
-from discrepancy.identify import FINALISTS, MAX_EFFECTS, POLISH, Identification, IdentifyOptions, identify
+from discrepancy.identify import BUDGET, FINALISTS, MAX_EFFECTS, POLISH, Identification, IdentifyOptions, identify
 from discrepancy.locate import ALPHA, Located, LocateResult, locate
 from discrepancy.noise import NoiseModel, NullSpec
 from discrepancy.redundancy import Check, check_all, sensor_suspects
@@ -44,6 +44,7 @@ class DiagnoseOptions:
     polish: int = POLISH  # Gauss–Newton steps before judging each round
     gn_iterations: int = GN_ITERATIONS  # Gauss–Newton steps of the final fit
     finalists: int = FINALISTS  # rivals refitted before a round's winner is chosen
+    budget: int = BUDGET  # twin replays after which no further selection round starts
 
 
 @dataclass
@@ -164,7 +165,8 @@ def _run(train: EpisodeData, held: list[EpisodeData], spec: TwinSpec, route2: Si
         suspects = sensor_suspects(checks, {loc.signal for loc in found.located})
     with timer.step("identify"):
         ident = identify(ctx, found, suspects, IdentifyOptions(opts.max_effects, opts.refine, opts.candidates,
-                                                               opts.null, opts.polish, opts.finalists))
+                                                               opts.null, opts.polish, opts.finalists,
+                                                               opts.budget))
     named = ident.effects
     with timer.step("fit"):
         result = fit(ctx, named, opts.seed, opts.gn_iterations) if named else None

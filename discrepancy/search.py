@@ -165,10 +165,9 @@ class ZoomSearch(_Tracked):
 
 
 class DelaySearch(ZoomSearch):
-    """Dead time: two bracket zooms in lockstep, one on the kinematic channels (a smooth bowl around the true
-    delay where they show it) and one on the full objective (V-shaped with a sharp tip: samples taken just after a
-    delayed valve switch; it also sees delays the kinematic channels barely show), then fine scans of the full
-    objective around its best point."""
+    """Dead time: bracket zooms in lockstep on the kinematic channels (a smooth bowl where they show the delay) and
+    on the full objective (V-shaped, sharp tip: samples just after a delayed valve switch; it sees delays the
+    kinematic channels barely show), then fine scans of the full objective around its best point."""
 
     focus: np.ndarray
     control_dt: float

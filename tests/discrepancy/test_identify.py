@@ -9,6 +9,9 @@ from __future__ import annotations
 import pytest
 
 from discrepancy import DiagnoseOptions, Effect, diagnose
+from discrepancy.bench_cases import ooc_physics
+from discrepancy.effects import UNEXPLAINED
+from discrepancy.synth import record
 
 #: effect → (target, parameters in Π, catalogue the search may choose from)
 CLEAR = {
@@ -58,3 +61,12 @@ def test_full_catalogue(name: str, scales, planted, twin) -> None:
     effect = Effect.from_pi(name, target, pis, scales)
     d = diagnose(planted([effect]).noisy, twin, options=DiagnoseOptions())
     assert d.effects and d.effects[0].effect == name
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("name", "size"), [("soft_tilt_servo", 0.03), ("boom_spring", 0.15)])
+def test_out_of_catalogue_is_unexplained(name: str, size: float, twin) -> None:
+    """Physics the catalogue has no entry for is reported as ``unexplained``, not as its closest entry alone."""
+    real = record(twin, [], 0.01, twin.seed, ooc_physics(name, size, twin))
+    d = diagnose(real.noisy, twin, options=DiagnoseOptions(workers=2))
+    assert d.located and UNEXPLAINED in d.named, d.named
