@@ -1,9 +1,12 @@
 """Time one diagnosis per pipeline step: replay, null, locate, redundancy, identify, fit, compare.
 
-Diagnoses a few planted recordings (a null, one effect, two effects) at the three presets with 1 and 2 worker
-processes and writes a table of seconds per step (median over the runs of each setting).
+Diagnoses a few planted recordings (a null, one effect, two effects) at the three presets, plus the benchmark's
+costliest two-effect cases (``--bench-cases CASES:SEED:INDEX``, as ``scaletwin bench-discrepancy`` makes them;
+by default the three that needed the most replays before the search budget existed), with 2 worker processes
+(``--workers``), and writes a table of seconds per step, the replays, whether the search budget cut the search,
+and the 1-min load average when each diagnosis ended.
 
-Run: ``python benchmarks/discrepancy_timing.py [--workers 1 2] [--out benchmarks/results/discrepancy_timing.md]``.
+Run: ``python benchmarks/discrepancy_timing.py [--workers 2] [--out benchmarks/results/discrepancy_timing.md]``.
 """
 
 from __future__ import annotations
@@ -42,30 +45,57 @@ def cases(scale: str) -> list[tuple[str, object, object]]:
     return out
 
 
+#: The costliest two-effect benchmark cases before the budget: (cases, seed, index) → 677, 673 and 562 replays.
+WORST = ("60:7:32", "30:11:6", "30:11:16")
+
+
+def bench_case(key: str) -> tuple[str, str, object, object]:
+    """A benchmark case (``CASES:SEED:INDEX``) as (scale, label, twin, (real, held out))."""
+    from discrepancy.bench_cases import make_cases
+
+    n, seed, index = (int(x) for x in key.split(":"))
+    case = make_cases(n, seed)[index]
+    nominal = record(case.twin, [], 0.0, case.twin.seed)
+    scales = Scales.of(case.twin.loader, case.twin.soil, signal_spread(nominal.clean.signals))
+    planted = case.effects(scales)
+    real = record(case.twin, planted, case.noise, case.twin.seed, case.extra(), name=f"case{index}")
+    held = record(case.twin, planted, case.noise, case.held_out_seed, case.extra(), name=f"case{index}_held_out")
+    label = f"bench seed {seed} #{index}: " + " + ".join(e.label() for e in planted)
+    return str(case.meta.get("scale")), label, case.twin, (real.noisy, held.noisy)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--workers", type=int, nargs="+", default=[1, 2])
+    ap.add_argument("--workers", type=int, nargs="+", default=[2])
     ap.add_argument("--scales", nargs="+", default=["mini", "er12", "wa475"])
+    ap.add_argument("--bench-cases", nargs="*", default=list(WORST), metavar="CASES:SEED:INDEX")
     ap.add_argument("--out", default="benchmarks/results/discrepancy_timing.md")
     args = ap.parse_args()
+    todo = [(scale, label, twin, eps) for scale in args.scales for label, twin, eps in cases(scale)]
+    todo += [bench_case(key) for key in args.bench_cases]
     rows = []
-    for scale in args.scales:
-        for label, twin, (real, held) in cases(scale):
-            for workers in args.workers:
-                d = diagnose(real, twin, held_out=[held], options=DiagnoseOptions(workers=workers))
-                named = ", ".join(e.effect for e in d.effects) or "-"
-                rows.append((scale, label, workers, named, d.simulations, [d.timings.get(s, 0.0) for s in STEPS]))
-                print(rows[-1][:5], f"{d.timings['total']:.1f} s", flush=True)
-    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
-    lines = [f"# discrepancy timing ({dt.date.today()}, {platform.machine()}, {os.cpu_count()} cores, load average "
-             f"{load:.1f} at the end, python {platform.python_version()})", "",
-             "Seconds per pipeline step of one diagnosis (one analysed cycle + one held-out cycle).", "",
-             "| scale | case | workers | named | replays | " + " | ".join(STEPS) + " |",
-             "|---|---|---|---|---|" + "---|" * len(STEPS)]
-    for scale, label, workers, named, sims, t in rows:
-        lines.append(f"| {scale} | {label} | {workers} | {named} | {sims} | " + " | ".join(f"{x:.1f}" for x in t)
-                     + " |")
-    totals = np.array([r[5][-1] for r in rows])
+    started = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
+    for scale, label, twin, (real, held) in todo:
+        for workers in args.workers:
+            d = diagnose(real, twin, held_out=[held], options=DiagnoseOptions(workers=workers))
+            named = ", ".join(e.effect for e in d.effects) or "-"
+            cut = (d.budget.cut if d.budget else None) or "-"
+            load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+            rows.append((scale, label, workers, named, d.simulations, cut, load,
+                         [d.timings.get(s, 0.0) for s in STEPS]))
+            print(rows[-1][:7], f"{d.timings['total']:.1f} s", flush=True)
+    budget = DiagnoseOptions()
+    lines = [f"# discrepancy timing ({started}, {platform.machine()}, {os.cpu_count()} cores, "
+             f"python {platform.python_version()})", "",
+             "Seconds per pipeline step of one diagnosis (one analysed cycle + one held-out cycle); search budget "
+             f"{budget.budget} replays / {budget.time_budget:g} s (cut: what stopped the search short, if anything); "
+             "load: 1-min load average when the diagnosis ended (other users' jobs included).", "",
+             "| scale | case | workers | named | replays | cut | load | " + " | ".join(STEPS) + " |",
+             "|---|---|---|---|---|---|---|" + "---|" * len(STEPS)]
+    for scale, label, workers, named, sims, cut, load, t in rows:
+        lines.append(f"| {scale} | {label} | {workers} | {named} | {sims} | {cut} | {load:.1f} | "
+                     + " | ".join(f"{x:.1f}" for x in t) + " |")
+    totals = np.array([r[-1][-1] for r in rows])
     lines += ["", f"Total per diagnosis: median {np.median(totals):.1f} s, max {totals.max():.1f} s."]
     text = "\n".join(lines) + "\n"
     print(text)

@@ -9,8 +9,10 @@ the executor seam (:func:`scaletwin_envs.parallel.make_executor`); every result 
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Callable
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -80,15 +82,19 @@ def run_case(case: Case, options: DiagnoseOptions | None = None) -> dict[str, An
         "truth_pairs": sorted(map(list, truth)), "dont_care": sorted(map(list, dont_care)),
         "located_pairs": sorted(map(list, located)), "reduction": reduction, "diagnosis_s": d.timings["total"],
         "generate_s": t1 - t0, "timings": d.timings, "simulations": d.simulations,
+        "budget": d.budget.to_dict() if d.budget else None, "workers": (options or DiagnoseOptions()).workers,
+        "load": os.getloadavg()[0] if hasattr(os, "getloadavg") else None,
     }
 
 
-def run_bench(cases: int, seed: int, workers: int = 1, on_result: Callable[[dict[str, Any]], None] | None = None
-              ) -> list[dict[str, Any]]:
-    """Run ``cases`` cases (``workers`` processes, one diagnosis per process); results in case order."""
+def run_bench(cases: int, seed: int, workers: int = 1, on_result: Callable[[dict[str, Any]], None] | None = None,
+              options: DiagnoseOptions | None = None) -> list[dict[str, Any]]:
+    """Run ``cases`` cases (``workers`` processes, one diagnosis per process, each with ``options``, e.g. its own
+    replay workers); results in case order."""
     todo = make_cases(cases, seed)
     results: dict[int, dict[str, Any]] = {}
-    for i, result in make_executor(workers if workers > 1 else "serial").map_unordered(run_case, todo):
+    task = partial(run_case, options=options)
+    for i, result in make_executor(workers if workers > 1 else "serial").map_unordered(task, todo):
         results[i] = result
         if on_result is not None:
             on_result(result)

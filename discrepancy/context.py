@@ -5,10 +5,11 @@ model and the objective (a robust sum of squared whitened residuals).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from discrepancy.budget import Budget
 from discrepancy.effects import Effect, Scales
 from discrepancy.episode import COMPARED, EpisodeData, signal_spread
 from discrepancy.locate import NullCalibration, Window, windows
@@ -39,6 +40,10 @@ class Context:
     noise: NoiseModel | None = None
     calibration: NullCalibration | None = None
     null_cost: float = 0.0  # expected objective when nothing differs
+    budget: Budget = field(default_factory=Budget)  # replay and time limits of the searches
+
+    def __post_init__(self) -> None:
+        self.budget.spent = lambda: self.replays.runs
 
     @classmethod
     def build(cls, real: EpisodeData, replays: CachedReplays, scales_of: type[Scales] = Scales) -> Context:

@@ -15,11 +15,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from discrepancy.candidates import Candidate
 from discrepancy.context import HUBER, Context
 from discrepancy.effects import Effect
 from discrepancy.episode import EpisodeData
 from discrepancy.runner import CachedReplays
-from discrepancy.search import Candidate
 
 GN_ITERATIONS = 3
 BOOTSTRAP = 400
@@ -128,7 +128,7 @@ def scan(ctx: Context, effects: Sequence[Effect], first: int,
     """Coordinate scans of every parameter (those of ``effects[first]`` first) at a few relative offsets, then
     finer ones around the best (``passes``: log offsets, or relative for signed parameters): the objective has
     jumps (fragile moments) that trap a purely local method a few per cent off, and effects found earlier may
-    have absorbed part of a later one."""
+    have absorbed part of a later one. Stops (keeping the best so far) when the context's budget is spent."""
     effects = list(effects)
     coords = _coordinates(effects)
     u = _to_u(effects, coords, ctx)
@@ -138,6 +138,8 @@ def scan(ctx: Context, effects: Sequence[Effect], first: int,
     for i in order:
         c = coords[i]
         for offsets in passes:
+            if ctx.budget.exhausted():
+                return _from_u(u, effects, coords, ctx), best
             scale = 1.0 if c.log else max(abs(u[i]), 1e-3)
             points = [np.clip(u + o * scale * np.eye(len(u))[i], bounds[:, 0], bounds[:, 1]) for o in offsets]
             costs = [ctx.cost(m) for m in ctx.simulate_many([_from_u(p, effects, coords, ctx) for p in points])]
@@ -147,10 +149,11 @@ def scan(ctx: Context, effects: Sequence[Effect], first: int,
     return _from_u(u, effects, coords, ctx), best
 
 
-def polish(ctx: Context, effects: Sequence[Effect], iterations: int = GN_ITERATIONS
+def polish(ctx: Context, effects: Sequence[Effect], iterations: int = GN_ITERATIONS, budgeted: bool = True
            ) -> tuple[list[Effect], float, np.ndarray, int]:
     """Damped Gauss–Newton on all parameters of ``effects`` jointly; an iterate is kept only when it lowers the
-    objective. Returns the effects, their objective, the last step (u) and the number of accepted steps."""
+    objective; with ``budgeted``, no iteration starts once the context's budget is spent. Returns the effects,
+    their objective, the last step (u) and the number of accepted steps."""
     effects = list(effects)
     coords = _coordinates(effects)
     u = _to_u(effects, coords, ctx)
@@ -159,6 +162,8 @@ def polish(ctx: Context, effects: Sequence[Effect], iterations: int = GN_ITERATI
     last = np.zeros_like(u)
     bounds = _bounds(effects, coords, ctx)
     for _ in range(iterations):
+        if budgeted and ctx.budget.exhausted():
+            break
         z, jac, w = _jacobian(ctx, effects, coords, u)
         delta = _trust(_solve(jac, w, z), u, coords)
         trials = [np.clip(u + f * delta, bounds[:, 0], bounds[:, 1]) for f in (1.0, 0.5, 0.25)]
@@ -176,7 +181,7 @@ def fit(ctx: Context, effects: Sequence[Effect], seed: int = 0, iterations: int 
     before = ctx.cost(ctx.simulate([]))
     if not effects:
         return FitResult([], [], before, before)
-    fitted, best, last, iterations = polish(ctx, effects, iterations)
+    fitted, best, last, iterations = polish(ctx, effects, iterations, budgeted=False)
     coords = _coordinates(fitted)
     u = _to_u(fitted, coords, ctx)
     z, jac, w = _jacobian(ctx, fitted, coords, u)

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from discrepancy.budget import REPLAYS, ROUND_RESERVE, SECONDS
 from discrepancy.calibrate import calibrate
 from discrepancy.context import DIVERGED, Context, huber
 from discrepancy.effects import Effect
@@ -28,9 +29,6 @@ from discrepancy.sensors import sensor_trials
 
 FINALISTS = 2  # best trials scanned and polished (with the effects accepted so far) before the winner is chosen
 MAX_EFFECTS = 3
-#: No further selection round starts once this many twin replays are spent (a round costs ~100-200): keeps one
-#: diagnosis within about a minute on 2 cores; what is left then is reported as ``unexplained``.
-BUDGET = 450
 POLISH = 2  # Gauss–Newton steps on all accepted effects before judging what is left
 MIN_GAIN = 25.0  # objective decrease a winner must bring (whitened units: far beyond a chance fit)
 MIN_FIRST = 0.3  # the first effect must remove at least this fraction of the excess residual
@@ -47,8 +45,9 @@ class IdentifyOptions:
     """Knobs of the selection: at most ``max_effects`` effects, ``refine`` candidates refined per round, the
     catalogue restricted to ``candidates`` (effect names or labels such as ``coulomb_friction[boom_hinge]``;
     None: all), the null spec of the re-calibration after each round, Gauss–Newton steps before judging, and
-    how many close rivals are refitted before the winner of a round is chosen; no round starts after ``budget``
-    twin replays."""
+    how many close rivals are refitted before the winner of a round is chosen. The searches stop once ``budget``
+    twin replays are spent or ``time_budget`` seconds have passed since the diagnosis started
+    (:mod:`discrepancy.budget`); what is left then is reported as ``unexplained``."""
 
     max_effects: int = MAX_EFFECTS
     refine: int = REFINE
@@ -56,7 +55,8 @@ class IdentifyOptions:
     null: NullSpec | None = None
     polish: int = POLISH
     finalists: int = FINALISTS
-    budget: int = BUDGET
+    budget: int = REPLAYS
+    time_budget: float = SECONDS
 
     def allows(self, name: str, target: str | None) -> bool:
         label = f"{name}[{target}]" if target else name
@@ -104,7 +104,9 @@ def _round(ctx: Context, base: list[Effect], base_cost: float, located: LocateRe
         return None
     trials.sort(key=lambda t: t.cost)
     models = {}
-    for t in _finalists(trials, opts.finalists):  # close rivals are refitted alike before one is chosen
+    for k, t in enumerate(_finalists(trials, opts.finalists)):  # close rivals are refitted alike, best first
+        if k and ctx.budget.exhausted():
+            break
         model, _ = scan(ctx, [*base, t.effect], len(base))
         model, cost, _, _ = polish(ctx, model, opts.polish)
         t.effect, t.cost = model[-1], cost
@@ -134,6 +136,7 @@ def identify(ctx: Context, located: LocateResult, suspects: set[str], opts: Iden
              ) -> Identification:
     """Select effects until the residual is explained (see module docstring)."""
     opts = opts or IdentifyOptions()
+    ctx.budget.replays, ctx.budget.seconds = opts.budget, opts.time_budget
     out = Identification()
     out.start_cost = out.final_cost = ctx.cost(ctx.simulate([]))
     if not located.located:
@@ -141,7 +144,7 @@ def identify(ctx: Context, located: LocateResult, suspects: set[str], opts: Iden
     current, cost = located, out.start_cost
     tolerable = False  # what is left after the accepted effects may be put down to fit imprecision
     while len(out.effects) < opts.max_effects:
-        if out.effects and ctx.replays.runs >= opts.budget:
+        if out.effects and ctx.budget.exhausted(ROUND_RESERVE):
             break
         if out.effects:  # a near miss of the accepted effects must not pass for a further effect
             refit, refit_cost = scan(ctx, out.effects, 0, (DENSE_SCAN, DENSE_FINE))

@@ -13,12 +13,13 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from discrepancy.budget import REPLAYS, SECONDS, Budget
 from discrepancy.calibrate import calibrate, use
 from discrepancy.context import Context
 from discrepancy.effects import UNEXPLAINED, Effect
 from discrepancy.episode import EpisodeData, RecordingError, from_recording, load_episode
 from discrepancy.fit import GN_ITERATIONS, Comparison, FitResult, compare, fit
-from discrepancy.identify import BUDGET, FINALISTS, MAX_EFFECTS, POLISH, Identification, IdentifyOptions, identify
+from discrepancy.identify import FINALISTS, MAX_EFFECTS, POLISH, Identification, IdentifyOptions, identify
 from discrepancy.locate import ALPHA, Located, LocateResult, locate
 from discrepancy.noise import NoiseModel, NullSpec
 from discrepancy.redundancy import Check, check_all, sensor_suspects
@@ -44,7 +45,8 @@ class DiagnoseOptions:
     polish: int = POLISH  # Gauss–Newton steps before judging each round
     gn_iterations: int = GN_ITERATIONS  # Gauss–Newton steps of the final fit
     finalists: int = FINALISTS  # rivals refitted before a round's winner is chosen
-    budget: int = BUDGET  # twin replays after which no further selection round starts
+    budget: int = REPLAYS  # twin replays after which the searches stop (deterministic)
+    time_budget: float = SECONDS  # seconds from the start after which the searches stop (safety net)
 
 
 @dataclass
@@ -79,6 +81,7 @@ class Diagnosis:
     locate_result: LocateResult | None = None
     simulations: int = 0
     noise: NoiseModel | None = None
+    budget: Budget | None = None  # the search budget and whether it cut the search short
 
     @property
     def named(self) -> list[str]:
@@ -88,6 +91,7 @@ class Diagnosis:
 class _Timer:
     def __init__(self) -> None:
         self.steps: dict[str, float] = {}
+        self.start = time.perf_counter()
 
     @contextmanager
     def step(self, name: str) -> Iterator[None]:
@@ -128,6 +132,8 @@ def diagnose(real: Source | Sequence[Source], twin: TwinSpec | str | None = None
         FileNotFoundError, RecordingError: unreadable, corrupted or mismatched recordings.
     """
     opts = options or DiagnoseOptions()
+    if opts.budget < 1 or not opts.time_budget > 0:
+        raise ValueError(f"budget must be >= 1 replay and time_budget > 0 s, got {opts.budget}, {opts.time_budget}")
     timer = _Timer()
     with timer.step("load"):
         sources = list(real) if isinstance(real, list | tuple) else [real]
@@ -149,6 +155,7 @@ def _run(train: EpisodeData, held: list[EpisodeData], spec: TwinSpec, route2: Si
     replays = CachedReplays(runner, train.commands, train.time)
     with timer.step("replay"):
         ctx = Context.build(train, replays)
+        ctx.budget = Budget(opts.budget, opts.time_budget, lambda: replays.runs, timer.start)
         if ctx.nominal.error:
             raise RecordingError(f"{train.name}: the twin diverged replaying the commands ({ctx.nominal.error})")
         if not ctx.names:
@@ -166,10 +173,11 @@ def _run(train: EpisodeData, held: list[EpisodeData], spec: TwinSpec, route2: Si
     with timer.step("identify"):
         ident = identify(ctx, found, suspects, IdentifyOptions(opts.max_effects, opts.refine, opts.candidates,
                                                                opts.null, opts.polish, opts.finalists,
-                                                               opts.budget))
+                                                               opts.budget, opts.time_budget))
     named = ident.effects
-    with timer.step("fit"):
-        result = fit(ctx, named, opts.seed, opts.gn_iterations) if named else None
+    with timer.step("fit"):  # after a cut by the clock, one Gauss–Newton step only
+        iterations = min(opts.gn_iterations, 1) if ctx.budget.cut == "time" else opts.gn_iterations
+        result = fit(ctx, named, opts.seed, iterations) if named else None
         effects = result.effects if result else []
     with timer.step("compare"):
         eps = held or [train]
@@ -181,7 +189,8 @@ def _run(train: EpisodeData, held: list[EpisodeData], spec: TwinSpec, route2: Si
     reported = _reported(ctx, ident, result, found)
     timer.steps["total"] = sum(timer.steps.values())
     return Diagnosis(spec, ctx.names, found.located, reported, comparison, ident, result, checks, timer.steps, train,
-                     held, traces, found, replays.runs + sum(r.runs for r in reps if r is not replays) + 1, ctx.noise)
+                     held, traces, found, replays.runs + sum(r.runs for r in reps if r is not replays) + 1, ctx.noise,
+                     ctx.budget)
 
 
 def _reported(ctx: Context, ident: Identification, result: FitResult | None, found: LocateResult

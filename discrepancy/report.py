@@ -5,10 +5,12 @@ JSON::
 
     {"located": [{"signal", "phase", "t_start", "t_end", "effect_size", "p_value"}],
      "effects": [{"effect", "target", "parameters", "interval", "confidence", "confounded_with"}],
-     "fit": {"before": {signal: nrmse}, "after": {signal: nrmse}}}
+     "fit": {"before": {signal: nrmse}, "after": {signal: nrmse}},
+     "search": {"replay_budget", "time_budget_s", "replays", "cut", "cut_at_s"}}  # only when the search was cut
 
 ``p_value`` is Benjamini–Hochberg adjusted; ``parameters``/``interval`` hold each SI parameter and its
-dimensionless group as ``pi_<parameter>``; ``fit`` is on held-out cycles when there were any.
+dimensionless group as ``pi_<parameter>``; ``fit`` is on held-out cycles when there were any; ``search`` is there
+only when the search budget (:mod:`discrepancy.budget`) cut the search short (``cut``: "replays" or "time").
 """
 
 from __future__ import annotations
@@ -51,6 +53,8 @@ def to_json(d: Diagnosis) -> dict[str, Any]:
         "fit": {"before": {k: _number(v) for k, v in d.comparison.before.items()},
                 "after": {k: _number(v) for k, v in d.comparison.after.items()}},
     }
+    if d.budget is not None and d.budget.cut:  # only then: an uncut report keeps the issue's three keys
+        doc["search"] = d.budget.to_dict()
     validate(doc)
     return doc
 
@@ -104,6 +108,12 @@ def markdown(d: Diagnosis, plots: list[str] | None = None) -> str:
     if d.identification.unexplained:
         lines += ["The catalogue does not explain the residual (`unexplained`): the closest candidates are listed "
                   "under *confounded with*; none is reported as found.", ""]
+    if d.budget is not None and d.budget.cut:
+        b = d.budget
+        why = (f"{b.replays} twin replays" if b.cut == "replays" else
+               f"{b.seconds:g} s of wall time (the result may depend on the machine's speed)")
+        lines += [f"**The search was cut short** after {b.cut_at or 0.0:.1f} s by its budget of {why}; what it had "
+                  "not explained by then is reported as `unexplained`.", ""]
     lines += ["## Where the twin and the machine differ", "",
               f"{len(d.located)} signal × window tests significant at FDR {0.01:g} (BH-adjusted p-values).", ""]
     rows = [[loc.signal, loc.phase, f"{loc.t_start:.2f}–{loc.t_end:.2f}", _fmt(loc.effect_size), f"{loc.p_value:.2e}"]

@@ -152,11 +152,17 @@ def table(results: list[dict[str, Any]], header: str = "") -> str:
         lines.append(f"| {name} | {row['n']} (+{row['hidden']}) | {_fmt(row['top1'])} | {_fmt(row['name_only'])} | "
                      f"{row['f1']:.2f} ({row['f1_strict']:.2f}) | {_fmt(row['param_error'])} | "
                      f"{_fmt(row['coverage'])} | {_fmt(row['reduction'])} |")
-    lines += ["", "Cases:", "", "| # | kind | scale | soil | noise | planted | named | time [s] |",
-              "|---|---|---|---|---|---|---|---|"]
+    cut = [r for r in results if (r.get("budget") or {}).get("cut")]
+    lines += ["", f"Search cut short by its budget in {len(cut)} of {len(results)} cases "
+              f"({', '.join(sorted({r['budget']['cut'] for r in cut})) or 'none'}).", "",
+              "Cases (time: the diagnosis alone, load: 1-min load average when it ended):", "",
+              "| # | kind | scale | soil | noise | planted | named | replays | cut | load | time [s] |",
+              "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in results:
         planted = ", ".join(r["planted"]) or (f"{r['ooc']} (out of catalogue)" if r["ooc"] else "-")
         named = ", ".join(f"{n}[{t}]" if t else n for n, t in r["named"]) or "-"
+        b, load = r.get("budget") or {}, r.get("load")
         lines.append(f"| {r['index']} | {r['kind']} | {r['scale']} | {r['soil']} | {r['noise']:g} | {planted} | "
-                     f"{named} | {r['diagnosis_s']:.1f} |")
+                     f"{named} | {r.get('simulations', '-')} | {b.get('cut') or '-'} | "
+                     f"{'-' if load is None else f'{load:.1f}'} | {r['diagnosis_s']:.1f} |")
     return "\n".join(lines) + "\n"

@@ -17,9 +17,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from discrepancy.candidates import Candidate, physics_candidates
 from discrepancy.context import HUBER, Context, huber
 from discrepancy.effects import Effect
-from discrepancy.search import KINEMATIC, Candidate, make_search, physics_candidates, run_searches
+from discrepancy.search import KINEMATIC, make_search, run_searches
 
 REFINE = 3  # candidates refined per round
 LAG_GAIN = 0.75  # a delay candidate is refined too when it removes a quarter of the kinematic residual
@@ -106,7 +107,7 @@ def physics_trials(ctx: Context, base: list[Effect], allows: Callable[[str, str 
             seen[c].append((u, *res))
     chosen += [c for c in ranked[refine:] if c.name == "actuator_delay" and _lags(ctx, base, seen[c])]
     searches = [make_search(c, ctx.scales, seen[c], ctx.names, ctx.real.dt) for c in chosen]
-    run_searches(searches, lambda b: _evaluate(ctx, base, b))
+    run_searches(searches, lambda b: _evaluate(ctx, base, b), ctx.budget.exhausted)
     vertices = [(s.candidate, s.vertex()) for s in searches]
     for (c, u), (cost, _) in zip(vertices, _evaluate(ctx, base, vertices), strict=True):
         seen[c].append((u, cost, np.empty(0)))

@@ -17,8 +17,9 @@ from typing import Protocol
 
 import numpy as np
 
+from discrepancy.candidates import Candidate
 from discrepancy.context import huber
-from discrepancy.effects import CATALOGUE, JOINTS, Effect, EffectSpec, Scales, pi_unit
+from discrepancy.effects import Scales
 
 ZOOM_ROUNDS = 3
 GN_ROUNDS = 3
@@ -28,64 +29,6 @@ KINEMATIC = ("lift_extension", "tilt_extension", "boom_angle", "bucket_pitch")
 #: Fine delay scan around the kinematic optimum, in 1/100 of the control step; then a finer one around the best.
 FINE_STEPS = (-25.0, -18.0, -12.0, -8.0, -5.0, -3.0, -2.0, -1.0, 1.0, 2.0, 3.0, 5.0, 8.0, 12.0, 18.0, 25.0)
 FINER_STEPS = (-0.5, -0.25, 0.25, 0.5)
-
-
-@dataclass(frozen=True)
-class Candidate:
-    """A catalogue effect at one target, searched in u = log Π (log parameters) or u = Π."""
-
-    name: str
-    target: str | None
-
-    @property
-    def spec(self) -> EffectSpec:
-        return CATALOGUE[self.name]
-
-    @property
-    def log(self) -> bool:
-        return all(p.log for p in self.spec.params)
-
-    def bounds(self, scales: Scales) -> np.ndarray:
-        """(params, 2) bounds in u."""
-        rows = []
-        for p in self.spec.params:
-            lo, hi = p.bounds
-            if self.name in ("soil_cohesion", "soil_adhesion"):  # the soil's own term cannot go below zero
-                lo = -getattr(scales, self.name.removeprefix("soil_")) / pi_unit(self.name, p.name, None, scales)
-            rows.append((np.log(max(lo, 1e-12)), np.log(hi)) if p.log else (lo, hi))
-        return np.array(rows, dtype=float)
-
-    def grid(self) -> list[np.ndarray]:
-        """Screening points in u."""
-        params = self.spec.params
-        if len(params) == 1:
-            return [np.array([np.log(g) if params[0].log else g]) for g in params[0].grid]
-        pts = []
-        for i, p in enumerate(params):  # along each axis
-            for g in p.grid:
-                u = np.zeros(len(params))
-                u[i] = g
-                pts.append(u)
-        return pts
-
-    def effect(self, u: np.ndarray, scales: Scales) -> Effect:
-        pis = {p.name: float(np.exp(v) if p.log else v) for p, v in zip(self.spec.params, u, strict=True)}
-        return Effect.from_pi(self.name, self.target, pis, scales)
-
-    def label(self) -> str:
-        return f"{self.name}[{self.target}]" if self.target else self.name
-
-
-def physics_candidates() -> list[Candidate]:
-    """Every simulated catalogue candidate (sensor faults are fitted in closed form elsewhere)."""
-    out = []
-    for spec in CATALOGUE.values():
-        if spec.plant == "sensor":
-            continue
-        targets = spec.targets if spec.target_kind in ("joint", "cylinder", "pin") else (spec.targets[0],)
-        out.extend(Candidate(spec.name, t) for t in targets)
-    assert {c.target for c in out if c.name == "coulomb_friction"} == set(JOINTS)
-    return out
 
 
 class Search(Protocol):
@@ -286,11 +229,12 @@ def make_search(candidate: Candidate, scales: Scales, seen: Sequence[tuple[np.nd
 Evaluator = Callable[[list[tuple[Candidate, np.ndarray]]], list[tuple[float, np.ndarray]]]
 
 
-def run_searches(searches: list[Search], evaluate: Evaluator) -> None:
-    """Advance all searches in lockstep; ``evaluate`` simulates a batch of (candidate, u) → (objective, z)."""
+def run_searches(searches: list[Search], evaluate: Evaluator, stop: Callable[[], bool] = lambda: False) -> None:
+    """Advance all searches in lockstep; ``evaluate`` simulates a batch of (candidate, u) → (objective, z). Before
+    each batch ``stop()`` may end them all (the budget): each keeps the best point it has seen."""
     while True:
         batch = [(s, p) for s in searches for p in s.propose()]
-        if not batch:
+        if not batch or stop():
             return
         results = evaluate([(s.candidate, p) for s, p in batch])
         for s in searches:

@@ -24,6 +24,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--report", metavar="OUT.md", help="write a Markdown report with plots")
     p.add_argument("--workers", type=int, default=1, help="processes replaying the twin (default 1)")
     p.add_argument("--seed", type=int, default=0, help="seed of the null runs and the bootstrap (default 0)")
+    p.add_argument("--budget", type=int, default=None, metavar="REPLAYS",
+                   help="twin replays after which the search stops (deterministic; "
+                        "default: discrepancy.budget.REPLAYS)")
+    p.add_argument("--time-budget", type=float, default=None, metavar="SECONDS",
+                   help="wall-clock seconds after which the search stops, a safety net reported in the output "
+                        "(default: discrepancy.budget.SECONDS)")
     p.set_defaults(func=run)
 
 
@@ -31,12 +37,14 @@ def run(args: argparse.Namespace) -> int:
     from discrepancy import DiagnoseOptions, NullSpec, diagnose
     from discrepancy.report import to_json, write_json, write_markdown
 
-    options = DiagnoseOptions(workers=args.workers, null=NullSpec(seed=args.seed), seed=args.seed)
+    limits = {k: v for k, v in (("budget", args.budget), ("time_budget", args.time_budget)) if v is not None}
+    options = DiagnoseOptions(workers=args.workers, null=NullSpec(seed=args.seed), seed=args.seed, **limits)
     d = diagnose(args.real, args.twin, held_out=args.held_out, options=options)
     to_json(d)  # validates
     console = Console()
+    cut = f", search cut short by its {d.budget.cut} budget" if d.budget and d.budget.cut else ""
     table = Table(title=f"{d.train.name}: {len(d.located)} located windows, {d.simulations} twin replays, "
-                        f"{d.timings['total']:.1f} s")
+                        f"{d.timings['total']:.1f} s{cut}")
     for col in ("effect", "target", "parameters (SI)", "confidence", "confounded with"):
         table.add_column(col)
     for e in d.effects:
