@@ -31,6 +31,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--coverage", type=float, help="interval level (default: the card's)")
     p.add_argument("--hold", type=int, help="recurrent models: each target row is the machine held still this "
                                             "many steps (static operating points)")
+    p.add_argument("--threads", type=int, help="cores for the batch (default: every usable core)")
     p.set_defaults(func=run)
 
 
@@ -65,7 +66,8 @@ def run(args: argparse.Namespace) -> int:
         warnings.simplefilter("always", zoo.ExtrapolationWarning)
         warnings.simplefilter("always", zoo.SourceWarning)
         try:
-            result = model.scale_force(source, target, coverage=args.coverage, hold=args.hold)
+            result = model.scale_force(source, target, coverage=args.coverage, hold=args.hold,
+                                        threads=args.threads)
         except InputError as exc:
             raise CommandError(str(exc)) from exc
     for w in caught:

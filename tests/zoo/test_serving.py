@@ -177,6 +177,35 @@ def test_row_path_matches_batch(ffnn: zoo.ScalingModel, ensemble: zoo.ScalingMod
         assert all(isinstance(v, float) for v in single[0].tolist())
 
 
+def test_batch_on_several_threads_matches_one(ffnn: zoo.ScalingModel, ensemble: zoo.ScalingModel,
+                                              gru: zoo.ScalingModel, rows: pd.DataFrame):
+    """Chunks run on threads give the rows back in order, identical to one thread; torch's setting is restored."""
+    import torch
+
+    from zoo.serving.kernels import CHUNK
+
+    threads_before = torch.get_num_threads()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", zoo.ExtrapolationWarning)
+        for model in (ffnn, ensemble):
+            x = np.resize(_si(model, rows), (3 * CHUNK + 17, len(model.target_variables)))
+            x[:, 0] *= np.linspace(0.9, 1.1, len(x))  # every row different, so a reordering would show
+            one, three = model.predict_array(x, threads=1), model.predict_array(x, threads=3)
+            np.testing.assert_array_equal(three.force, one.force)
+            np.testing.assert_array_equal(three.upper, one.upper)
+            np.testing.assert_array_equal(three.extrapolated, one.extrapolated)
+        x = np.resize(_si(gru, rows), (4000, len(gru.target_variables)))
+        seqs = [np.arange(0, 1000), np.arange(1000, 2000), np.arange(2000, 2500), np.arange(2500, 3000),
+                np.arange(3000, 4000)]
+        one, three = gru.predict_array(x, sequences=seqs, threads=1), gru.predict_array(x, sequences=seqs, threads=3)
+        np.testing.assert_allclose(three.force, one.force, rtol=1e-6)
+        alone = gru.predict_array(x[2500:3000], threads=1)  # a sequence run on its own gives the same
+        np.testing.assert_allclose(three.force[2500:3000], alone.force, rtol=1e-6)
+    assert torch.get_num_threads() == threads_before
+    with pytest.raises(zoo.InputError, match="threads"):
+        ffnn.predict_array(_si(ffnn, rows), threads=0)
+
+
 def test_ensemble_interval_widens_with_coverage(ensemble: zoo.ScalingModel, rows: pd.DataFrame):
     narrow, wide = (ensemble.scale_force(None, rows, coverage=c) for c in (0.5, 0.99))
     assert np.all(wide.upper - wide.lower > narrow.upper - narrow.lower)

@@ -25,6 +25,7 @@ from torch import nn
 from scaling.groups import PiGroup
 from scaling.models import DeepEnsemble, DeltaModel, GRUModel
 from scaling.models.ffnn import FFNN
+from zoo.serving.parallel import map_ordered
 
 #: Rows per chunk of the batch path (keeps activations in cache).
 CHUNK = 8192
@@ -103,14 +104,31 @@ def _linears(net: nn.Module) -> list[tuple[np.ndarray, np.ndarray]]:
             for m in net.modules() if isinstance(m, nn.Linear)]
 
 
-def _run_torch(net: nn.Module, z: np.ndarray) -> np.ndarray:
-    """``net`` over ``z`` (n, k) in float32 chunks; output (n, n_out) float64."""
-    out = []
-    with torch.inference_mode():
-        for start in range(0, len(z), CHUNK):
-            chunk = torch.from_numpy(np.ascontiguousarray(z[start:start + CHUNK], dtype=np.float32))
-            out.append(net(chunk).reshape(len(chunk), -1).numpy())
-    return np.concatenate(out).astype(np.float64) if out else np.zeros((0, 1))
+#: In-place torch activations of the batch path (gelu has no in-place form: it allocates).
+TORCH_INPLACE = {"silu": lambda h: torch.nn.functional.silu(h, inplace=True), "tanh": torch.tanh_,
+                 "relu": torch.relu_, "gelu": torch.nn.functional.gelu}
+
+
+class TorchMLP:
+    """The forward pass of a ``make_mlp`` network (Linear → activation [→ Dropout, identity at inference]) as bare
+    ``addmm`` calls on the network's own float32 weights with in-place activations: the same arithmetic as
+    ``net(z)`` (``F.linear`` is ``addmm`` with the transposed weight) without the module dispatch and with fewer
+    temporaries."""
+
+    def __init__(self, net: nn.Module, x_mean: np.ndarray, x_std: np.ndarray, activation: str) -> None:
+        self.x_mean, self.x_std = x_mean, x_std
+        self.layers = [(m.weight.detach().t(), m.bias.detach()) for m in net.modules() if isinstance(m, nn.Linear)]
+        self.act = TORCH_INPLACE[activation]
+
+    def __call__(self, g: np.ndarray) -> np.ndarray:
+        """Network output (n, n_out) float64 of raw feature rows ``g`` (n, k), in one pass (callers chunk)."""
+        z = np.ascontiguousarray((g - self.x_mean) / self.x_std, dtype=np.float32)
+        with torch.inference_mode():
+            h = torch.from_numpy(z)
+            for w, b in self.layers[:-1]:
+                h = self.act(torch.addmm(b, h, w))
+            w, b = self.layers[-1]
+            return torch.addmm(b, h, w).double().numpy()
 
 
 class _SingleNet:
@@ -130,6 +148,7 @@ class MLPKernel(_SingleNet):
         super().__init__(model)
         self.layers = _linears(self.net)
         self.act = NUMPY_ACTIVATIONS.get(model.activation)
+        self.torch_mlp = TorchMLP(self.net, self.x_mean, self.x_std, model.activation)
 
     def row(self, g: np.ndarray) -> float:
         """ln δ1 of one feature row ``g`` (k,)."""
@@ -145,8 +164,7 @@ class MLPKernel(_SingleNet):
 
     def batch(self, g: np.ndarray) -> tuple[np.ndarray, None]:
         """ln δ1 of feature rows ``g`` (n, k); no predictive variance."""
-        out = _run_torch(self.net, (g - self.x_mean) / self.x_std)
-        return self.y_mean + self.y_std * out[:, 0], None
+        return self.y_mean + self.y_std * self.torch_mlp(g)[:, 0], None
 
 
 class EnsembleKernel:
@@ -163,6 +181,8 @@ class EnsembleKernel:
         self.layers = [(np.stack([p[i][0] for p in per_member]), np.stack([p[i][1] for p in per_member])[:, None, :])
                        for i in range(len(per_member[0]))]
         self.act = NUMPY_ACTIVATIONS.get(members[0].activation)
+        self.torch_mlps = [TorchMLP(net, self.x_mean[k, 0], self.x_std[k, 0], m.activation)
+                           for k, (net, m) in enumerate(zip(self.nets, members, strict=True))]
 
     def _mixture(self, out: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(mean, variance) of ln δ1 from member outputs ``out`` (K, n, 2) in standardised units."""
@@ -186,8 +206,8 @@ class EnsembleKernel:
         return float(mean[0]), float(var[0])
 
     def batch(self, g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        out = np.stack([_run_torch(net, (g - self.x_mean[k]) / self.x_std[k]) for k, net in enumerate(self.nets)])
-        return self._mixture(out)
+        """(mean, variance) of ln δ1 for feature rows ``g`` (n, k), one chunk at a time."""
+        return self._mixture(np.stack([mlp(g) for mlp in self.torch_mlps]))
 
 
 class GRUKernel(_SingleNet):
@@ -218,18 +238,25 @@ class GRUKernel(_SingleNet):
             x = new[layer] = n + rz[hdim:] * (h - n)
         return self.y_mean + self.y_std * (float(x @ self.head_w) + self.head_b), new
 
-    def sequences(self, g: np.ndarray, seqs: Sequence[np.ndarray]) -> np.ndarray:
-        """ln δ1 of every row, each index array of ``seqs`` run as one sequence from a zero state (sequences of
-        equal length share one batched GRU call)."""
+    def sequences(self, g: np.ndarray, seqs: Sequence[np.ndarray], threads: int = 1) -> np.ndarray:
+        """ln δ1 of every row, each index array of ``seqs`` run as one sequence from a zero state.
+
+        Sequences of equal length share one batched GRU call; with ``threads`` > 1 each such batch is split into
+        ``threads`` parts run at once (the same results up to float32 rounding).
+        """
         z = ((g - self.x_mean) / self.x_std).astype(np.float32)
         out = np.empty(len(g))
         by_length: dict[int, list[np.ndarray]] = {}
         for s in seqs:
             by_length.setdefault(len(s), []).append(np.asarray(s))
-        with torch.inference_mode():
-            for group in by_length.values():
-                idx = np.stack(group)
+        parts = [part for group in by_length.values()
+                 for part in np.array_split(np.stack(group), min(threads, len(group)))]
+
+        def run(idx: np.ndarray) -> None:
+            with torch.inference_mode():
                 out[idx] = self.net(torch.from_numpy(z[idx])).double().numpy()
+
+        map_ordered(run, parts, threads)
         return self.y_mean + self.y_std * out
 
 

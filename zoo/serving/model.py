@@ -36,6 +36,7 @@ from scaling.models import DeltaModel
 from scaling.validation import STATIC_STEPS, model_groups
 from zoo.serving.inputs import InputError, Rows, split_header, to_matrix
 from zoo.serving.kernels import CHUNK, EnsembleKernel, Features, GroupPlan, GRUKernel, kernel_for, normal_quantile
+from zoo.serving.parallel import map_ordered, resolve_threads
 
 if TYPE_CHECKING:
     from zoo.serving.stream import Prediction, Stream
@@ -196,7 +197,7 @@ class ScalingModel:
     # ------------------------------------------------------------------------------------------------ batch
 
     def scale_force(self, source: Rows | None, target: Rows, *, coverage: float | None = None,
-                    hold: int | None = None) -> ScaledForce:
+                    hold: int | None = None, threads: int | None = None) -> ScaledForce:
         """F21 of every target row with its interval (SI), from the source's F21 through δ1 (Eq. 22).
 
         Args:
@@ -209,6 +210,7 @@ class ScalingModel:
                 (sorted by ``t``) if the target has those columns, else one. A target made only of lone rows (every
                 episode one row long, as in :func:`scaling.validation.static_rows`) has no history to run, so each
                 row is held for :data:`~scaling.validation.STATIC_STEPS` steps, as in the miniature validation.
+            threads: cores for a large batch (default every usable core; see :meth:`predict_array`).
 
         Raises:
             InputError: missing quantities, bad units, non-finite values, or a source/target size mismatch.
@@ -229,41 +231,64 @@ class ScalingModel:
             if model._n_source > 1:
                 raise InputError("hold needs a single source row")
             return model.predict_array(np.repeat(x, hold, axis=0), coverage=coverage,
-                                       sequences=np.arange(len(x) * hold).reshape(len(x), hold), pick=hold)
-        return model.predict_array(x, coverage=coverage, sequences=seqs)
+                                       sequences=np.arange(len(x) * hold).reshape(len(x), hold), pick=hold,
+                                       threads=threads)
+        return model.predict_array(x, coverage=coverage, sequences=seqs, threads=threads)
 
     def predict_array(self, x: np.ndarray, *, coverage: float | None = None,
                       sequences: Sequence[np.ndarray] | np.ndarray | None = None,
-                      pick: int | None = None) -> ScaledForce:
+                      pick: int | None = None, threads: int | None = None) -> ScaledForce:
         """Batch path on a raw SI matrix ``x`` (n, len(target_variables)); no unit handling.
 
         ``sequences`` (recurrent models): index arrays run as separate time series (default: all rows, one series);
-        ``pick``: keep only the last row of every ``pick`` rows (used by ``hold``).
+        ``pick``: keep only the last row of every ``pick`` rows (used by ``hold``); ``threads``: cores to use
+        (default every usable core; rows are cut into :data:`CHUNK`-row chunks run at once, see
+        :mod:`zoo.serving.parallel`).
         """
         n = len(x)
         if n == 0:
             raise InputError("target: no rows")
         spread = self._spread(coverage)
-        parts = []
+        try:
+            threads = resolve_threads(threads)
+        except ValueError as exc:
+            raise InputError(str(exc)) from None
         if isinstance(self.kernel, GRUKernel):
-            g, rest = self._features_of(x, 0)
-            mu = self.kernel.sequences(g, [np.arange(n)] if sequences is None else list(sequences))
-            if pick is not None:
-                keep = np.arange(pick - 1, n, pick)
-                g, mu, rest = g[keep], mu[keep], rest[keep]
-            parts.append(self._finish(g, rest, mu, None, self._pi1_source, spread))
+            parts = self._recurrent_parts(x, spread, sequences, pick, threads)
         else:
-            for start in range(0, n, CHUNK):
-                g, rest = self._features_of(x[start:start + CHUNK], start)
-                mu, var = self.kernel.batch(g)
-                pi1 = self._pi1_source if self._n_source == 1 else self._pi1_source[start:start + CHUNK]
-                parts.append(self._finish(g, rest, mu, var, pi1, spread))
+            parts = map_ordered(lambda start: self._chunk(x, start, spread), range(0, n, CHUNK), threads)
         force, lo, hi, delta, outside, g_out = (np.concatenate(c) for c in zip(*parts, strict=True))
         if outside.any():
             self._warn(g_out, int(outside.sum()), len(outside))
         if not np.all(np.isfinite(force)):
             raise InputError(f"target: {int((~np.isfinite(force)).sum())} rows give a non-finite {self.variable}")
         return ScaledForce(self.variable, self.unit, force, lo, hi, delta, outside, spread[0], self.interval_method)
+
+    def _chunk(self, x: np.ndarray, start: int, spread: tuple[float, float, float]) -> tuple[np.ndarray, ...]:
+        """:meth:`_finish` of feed-forward rows ``start:start + CHUNK``."""
+        g, rest = self._features_of(x[start:start + CHUNK], start)
+        mu, var = self.kernel.batch(g)
+        return self._finish(g, rest, mu, var, self._pi1_rows(start, start + len(g)), spread)
+
+    def _recurrent_parts(self, x: np.ndarray, spread: tuple[float, float, float],
+                         sequences: Sequence[np.ndarray] | np.ndarray | None, pick: int | None,
+                         threads: int) -> list[tuple[np.ndarray, ...]]:
+        """:meth:`_finish` chunks of a recurrent model: features per chunk, the GRU per sequence batch."""
+        n = len(x)
+        assert isinstance(self.kernel, GRUKernel)
+        feats = map_ordered(lambda start: self._features_of(x[start:start + CHUNK], start), range(0, n, CHUNK),
+                            threads)
+        g, rest = (np.concatenate(c) for c in zip(*feats, strict=True))
+        mu = self.kernel.sequences(g, [np.arange(n)] if sequences is None else list(sequences), threads)
+        rows = np.arange(n) if pick is None else np.arange(pick - 1, n, pick)
+        g, mu, rest = g[rows], mu[rows], rest[rows]
+        return map_ordered(lambda s: self._finish(g[s:s + CHUNK], rest[s:s + CHUNK], mu[s:s + CHUNK], None,
+                                                  self._pi1_rows(s, s + CHUNK), spread),
+                           range(0, len(rows), CHUNK), threads)
+
+    def _pi1_rows(self, start: int, stop: int) -> float | np.ndarray:
+        """π1 of the source for target rows ``start:stop`` (one shared value or one per row)."""
+        return self._pi1_source if self._n_source == 1 else self._pi1_source[start:stop]
 
     def _features_of(self, x: np.ndarray, start: int) -> tuple[np.ndarray, np.ndarray]:
         """(distortion features g, rest of π1) of target rows ``x`` (rows ``start``… of the batch)."""
