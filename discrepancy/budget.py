@@ -1,10 +1,12 @@
 """The search budget of one diagnosis: a deterministic cap on twin replays and a wall-clock safety net.
 
 The replay cap (:data:`REPLAYS`) is what normally bounds a diagnosis: every search stops at a batch boundary once it
-is spent, so the same recording and seed always give the same answer. It is sized so that a diagnosis fits in
-about a minute on 2 cores (``workers=2``, ~0.07–0.1 s of wall time per replay). The wall-clock limit
-(:data:`SECONDS`, counted from the start of the diagnosis) is a safety net for a slow or loaded machine; when it
-cuts the search the result may depend on the machine, and the report says so (:attr:`Budget.cut`).
+is spent, so the same recording and seed always give the same answer. It is sized so that a diagnosis fits in a
+minute on 2 cores (``workers=2``: ~0.1–0.13 s of wall time per replay, so ~35–45 s of searching, plus ~5 s before
+and ~1–5 s after). The wall-clock limit (:data:`SECONDS`, counted from the start of the diagnosis) is a safety
+net for a slow or loaded machine or unusually slow replays; when it cuts the search the result may depend on the
+machine, and the report says so (:attr:`Budget.cut`). A batch already started is finished (a few seconds at most
+after the first round's screening), and the judgement of a round's winner always runs.
 """
 
 from __future__ import annotations
@@ -15,9 +17,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 #: Twin replays (all of them: nominal, null runs, searches) after which the searches stop.
-REPLAYS = 420
+REPLAYS = 350
 #: Seconds from the start of the diagnosis after which identification stops (safety net; fit and compare follow).
-SECONDS = 45.0
+SECONDS = 50.0
 #: A further selection round starts only with at least this many replays left (screening, refinement, judging).
 ROUND_RESERVE = 60
 
