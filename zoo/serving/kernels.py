@@ -15,31 +15,20 @@ Everything here works on plain arrays in SI with no validation, so that one row 
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-import torch
-from torch import nn
 
 from scaling.groups import PiGroup
 from scaling.models import DeepEnsemble, DeltaModel, GRUModel
 from scaling.models.ffnn import FFNN
-from zoo.serving.parallel import map_ordered
+from zoo.serving.networks import NUMPY_ACTIVATIONS, SingleNet, TorchMLP, linears
+from zoo.serving.recurrent import GRUKernel
 
 #: Rows per chunk of the batch path (keeps activations in cache).
 CHUNK = 8192
-
-
-def _silu(x: np.ndarray) -> np.ndarray:
-    return x / (1.0 + np.exp(-x))
-
-
-def _relu(x: np.ndarray) -> np.ndarray:
-    return np.maximum(x, 0.0)
-
-
-NUMPY_ACTIVATIONS = {"silu": _silu, "tanh": np.tanh, "relu": _relu}
 
 
 @dataclass(frozen=True)
@@ -99,54 +88,12 @@ class Features:
         return Features(self.scale, self.sign, self.h_source[start:stop])
 
 
-def _linears(net: nn.Module) -> list[tuple[np.ndarray, np.ndarray]]:
-    return [(m.weight.detach().double().numpy().T.copy(), m.bias.detach().double().numpy().copy())
-            for m in net.modules() if isinstance(m, nn.Linear)]
-
-
-#: In-place torch activations of the batch path (gelu has no in-place form: it allocates).
-TORCH_INPLACE = {"silu": lambda h: torch.nn.functional.silu(h, inplace=True), "tanh": torch.tanh_,
-                 "relu": torch.relu_, "gelu": torch.nn.functional.gelu}
-
-
-class TorchMLP:
-    """The forward pass of a ``make_mlp`` network (Linear → activation [→ Dropout, identity at inference]) as bare
-    ``addmm`` calls on the network's own float32 weights with in-place activations: the same arithmetic as
-    ``net(z)`` (``F.linear`` is ``addmm`` with the transposed weight) without the module dispatch and with fewer
-    temporaries."""
-
-    def __init__(self, net: nn.Module, x_mean: np.ndarray, x_std: np.ndarray, activation: str) -> None:
-        self.x_mean, self.x_std = x_mean, x_std
-        self.layers = [(m.weight.detach().t(), m.bias.detach()) for m in net.modules() if isinstance(m, nn.Linear)]
-        self.act = TORCH_INPLACE[activation]
-
-    def __call__(self, g: np.ndarray) -> np.ndarray:
-        """Network output (n, n_out) float64 of raw feature rows ``g`` (n, k), in one pass (callers chunk)."""
-        z = np.ascontiguousarray((g - self.x_mean) / self.x_std, dtype=np.float32)
-        with torch.inference_mode():
-            h = torch.from_numpy(z)
-            for w, b in self.layers[:-1]:
-                h = self.act(torch.addmm(b, h, w))
-            w, b = self.layers[-1]
-            return torch.addmm(b, h, w).double().numpy()
-
-
-class _SingleNet:
-    """A model with one network and its input/output standardisers (FFNN, GRU)."""
-
-    def __init__(self, model: FFNN | GRUModel) -> None:
-        assert model.net_ is not None and model.x_scale_ is not None and model.y_scale_ is not None
-        self.net = model.net_.eval()
-        self.x_mean, self.x_std = model.x_scale_.mean.astype(float), model.x_scale_.std.astype(float)
-        self.y_mean, self.y_std = float(model.y_scale_.mean[0]), float(model.y_scale_.std[0])
-
-
-class MLPKernel(_SingleNet):
+class MLPKernel(SingleNet):
     """An :class:`FFNN`: standardise g, MLP, un-standardise → ln δ1."""
 
     def __init__(self, model: FFNN) -> None:
         super().__init__(model)
-        self.layers = _linears(self.net)
+        self.layers = linears(self.net)
         self.act = NUMPY_ACTIVATIONS.get(model.activation)
         self.torch_mlp = TorchMLP(self.net, self.x_mean, self.x_std, model.activation)
 
@@ -177,9 +124,14 @@ class EnsembleKernel:
         self.x_std = np.stack([m.x_scale_.std for m in members]).astype(float)[:, None, :]
         self.y_mean = np.array([float(m.y_scale_.mean[0]) for m in members])
         self.y_std = np.array([float(m.y_scale_.std[0]) for m in members])
-        per_member = [_linears(n) for n in self.nets]
+        per_member = [linears(n) for n in self.nets]
         self.layers = [(np.stack([p[i][0] for p in per_member]), np.stack([p[i][1] for p in per_member])[:, None, :])
                        for i in range(len(per_member[0]))]
+        # row path: the members' input standardisation folded into their first layer (float64, exact enough)
+        w0, b0 = self.layers[0]
+        self._row_layers = [(w0 / self.x_std.transpose(0, 2, 1), b0 - np.matmul(self.x_mean / self.x_std, w0)),
+                            *self.layers[1:]]
+        self._y = list(zip(self.y_mean.tolist(), self.y_std.tolist(), strict=True))
         self.act = NUMPY_ACTIVATIONS.get(members[0].activation)
         self.torch_mlps = [TorchMLP(net, self.x_mean[k, 0], self.x_std[k, 0], m.activation)
                            for k, (net, m) in enumerate(zip(self.nets, members, strict=True))]
@@ -196,68 +148,24 @@ class EnsembleKernel:
         if self.act is None:
             mean, var = self.batch(g[None])
             return float(mean[0]), float(var[0])
-        h = (g[None, None, :] - self.x_mean) / self.x_std
-        last = len(self.layers) - 1
-        for i, (w, b) in enumerate(self.layers):
+        h = g[None, None, :]
+        last = len(self._row_layers) - 1
+        for i, (w, b) in enumerate(self._row_layers):
             h = np.matmul(h, w) + b
             if i < last:
                 h = self.act(h)
-        mean, var = self._mixture(h)
-        return float(mean[0]), float(var[0])
+        # the mixture of :meth:`_mixture` on K plain floats: NumPy's per-call cost dominates at this size
+        mus, second = [], 0.0
+        for (out_mu, out_log_var), (y_mean, y_std) in zip(h.reshape(-1, 2).tolist(), self._y, strict=True):
+            mu = y_mean + y_std * out_mu
+            mus.append(mu)
+            second += math.exp(min(max(out_log_var, -12.0), 8.0)) * y_std * y_std + mu * mu
+        mean = sum(mus) / len(mus)
+        return mean, max(second / len(mus) - mean * mean, 0.0)
 
     def batch(self, g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(mean, variance) of ln δ1 for feature rows ``g`` (n, k), one chunk at a time."""
         return self._mixture(np.stack([mlp(g) for mlp in self.torch_mlps]))
-
-
-class GRUKernel(_SingleNet):
-    """A :class:`GRUModel`: one step at a time (``step``, NumPy, hidden state carried) or whole sequences."""
-
-    def __init__(self, model: GRUModel) -> None:
-        super().__init__(model)
-        gru = self.net.gru
-        self.hidden, self.num_layers = gru.hidden_size, gru.num_layers
-        self.cells = [tuple(getattr(gru, f"{n}_l{i}").detach().double().numpy().copy()
-                            for n in ("weight_ih", "weight_hh", "bias_ih", "bias_hh")) for i in range(self.num_layers)]
-        w, b = _linears(self.net.head)[0]
-        self.head_w, self.head_b = w[:, 0], float(b[0])
-
-    def initial_state(self) -> np.ndarray:
-        return np.zeros((self.num_layers, self.hidden))
-
-    def step(self, g: np.ndarray, state: np.ndarray) -> tuple[float, np.ndarray]:
-        """ln δ1 at this step and the next hidden state (PyTorch's GRU equations, gates ordered r, z, n)."""
-        x = (g - self.x_mean) / self.x_std
-        new = np.empty_like(state)
-        hdim = self.hidden
-        for layer, (w_ih, w_hh, b_ih, b_hh) in enumerate(self.cells):
-            h = state[layer]
-            gi, gh = w_ih @ x + b_ih, w_hh @ h + b_hh
-            rz = 1.0 / (1.0 + np.exp(-(gi[:2 * hdim] + gh[:2 * hdim])))
-            n = np.tanh(gi[2 * hdim:] + rz[:hdim] * gh[2 * hdim:])
-            x = new[layer] = n + rz[hdim:] * (h - n)
-        return self.y_mean + self.y_std * (float(x @ self.head_w) + self.head_b), new
-
-    def sequences(self, g: np.ndarray, seqs: Sequence[np.ndarray], threads: int = 1) -> np.ndarray:
-        """ln δ1 of every row, each index array of ``seqs`` run as one sequence from a zero state.
-
-        Sequences of equal length share one batched GRU call; with ``threads`` > 1 each such batch is split into
-        ``threads`` parts run at once (the same results up to float32 rounding).
-        """
-        z = ((g - self.x_mean) / self.x_std).astype(np.float32)
-        out = np.empty(len(g))
-        by_length: dict[int, list[np.ndarray]] = {}
-        for s in seqs:
-            by_length.setdefault(len(s), []).append(np.asarray(s))
-        parts = [part for group in by_length.values()
-                 for part in np.array_split(np.stack(group), min(threads, len(group)))]
-
-        def run(idx: np.ndarray) -> None:
-            with torch.inference_mode():
-                out[idx] = self.net(torch.from_numpy(z[idx])).double().numpy()
-
-        map_ordered(run, parts, threads)
-        return self.y_mean + self.y_std * out
 
 
 Kernel = MLPKernel | EnsembleKernel | GRUKernel
