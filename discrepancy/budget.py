@@ -19,7 +19,7 @@ from typing import Any
 #: Twin replays (all of them: nominal, null runs, searches) after which the searches stop.
 REPLAYS = 350
 #: Seconds from the start of the diagnosis after which identification stops (safety net; fit and compare follow).
-SECONDS = 50.0
+SECONDS = 45.0
 #: A further selection round starts only with at least this many replays left (screening, refinement, judging).
 ROUND_RESERVE = 60
 
