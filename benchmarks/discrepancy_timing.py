@@ -90,7 +90,7 @@ def main() -> None:
              "Seconds per pipeline step of one diagnosis (one analysed cycle + one held-out cycle); search budget "
              f"{budget.budget} replays / {budget.time_budget:g} s (cut: what stopped the search short, if anything); "
              "load: 1-min load average when the diagnosis ended (other users' jobs included).", "",
-             "| scale | case | workers | named | replays | cut | load | " + " | ".join(STEPS) + " |",
+             "| scale | case | workers | named | replays | cut | load avg | " + " | ".join(STEPS) + " |",
              "|---|---|---|---|---|---|---|" + "---|" * len(STEPS)]
     for scale, label, workers, named, sims, cut, load, t in rows:
         lines.append(f"| {scale} | {label} | {workers} | {named} | {sims} | {cut} | {load:.1f} | "
