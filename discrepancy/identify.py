@@ -13,6 +13,7 @@ likelihood weight among all trials.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -27,6 +28,7 @@ from discrepancy.noise import NullSpec
 from discrepancy.screen import REFINE, Trial, physics_trials
 from discrepancy.sensors import sensor_trials
 
+Guard = Callable[[Effect], bool]  # may this sensor fault explain a channel an intact identity guards?
 FINALISTS = 2  # best trials scanned and polished (with the effects accepted so far) before the winner is chosen
 MAX_EFFECTS = 3
 POLISH = 2  # Gauss–Newton steps on all accepted effects before judging what is left
@@ -88,18 +90,21 @@ class Identification:
     final_cost: float = 0.0
 
 
-def _sensor_trials(ctx: Context, base: list[Effect], suspects: set[str], opts: IdentifyOptions) -> list[Trial]:
+def _sensor_trials(ctx: Context, base: list[Effect], signals: set[str], suspects: set[str], opts: IdentifyOptions,
+                   guard: Guard | None) -> list[Trial]:
+    """Sensor faults on the located ``signals``: on suspects, and on guarded channels where ``guard`` admits them."""
     taken = {e.target for e in base if e.spec.plant == "sensor"}
     matrix = ctx.simulate(base)
-    return [Trial(e, cost) for s in sorted(suspects - taken) if s in ctx.names
-            for e, cost in sensor_trials(ctx, matrix, s) if opts.allows(e.name, e.target)]
+    todo = [s for s in sorted(signals - taken) if s in ctx.names and (s in suspects or guard is not None)]
+    return [Trial(e, cost) for s in todo for e, cost in sensor_trials(ctx, matrix, s)
+            if opts.allows(e.name, e.target) and (s in suspects or (guard is not None and guard(e)))]
 
 
 def _round(ctx: Context, base: list[Effect], base_cost: float, located: LocateResult, suspects: set[str],
-           opts: IdentifyOptions) -> Round | None:
+           opts: IdentifyOptions, guard: Guard | None = None) -> Round | None:
     signals = {loc.signal for loc in located.located}
     trials = physics_trials(ctx, base, opts.allows, opts.refine)
-    trials += _sensor_trials(ctx, base, suspects & signals, opts)
+    trials += _sensor_trials(ctx, base, signals, suspects, opts, guard)
     if not trials:
         return None
     trials.sort(key=lambda t: t.cost)
@@ -132,9 +137,11 @@ def _finalists(trials: list[Trial], n: int = FINALISTS) -> list[Trial]:
     return out
 
 
-def identify(ctx: Context, located: LocateResult, suspects: set[str], opts: IdentifyOptions | None = None
-             ) -> Identification:
-    """Select effects until the residual is explained (see module docstring)."""
+def identify(ctx: Context, located: LocateResult, suspects: set[str], opts: IdentifyOptions | None = None,
+             guard: Guard | None = None) -> Identification:
+    """Select effects until the residual is explained (see module docstring). Sensor faults are tried on the
+    located ``suspects``, and on other located channels where ``guard(fault)`` admits them (the redundancy's
+    :func:`~discrepancy.redundancy.fault_admissible`)."""
     opts = opts or IdentifyOptions()
     ctx.budget.replays, ctx.budget.seconds = opts.budget, opts.time_budget
     out = Identification()
@@ -156,7 +163,7 @@ def identify(ctx: Context, located: LocateResult, suspects: set[str], opts: Iden
                     return out
                 tolerable = judge.removed >= EXPLAINED and (len(after.located) <= _tolerated(located)
                                                             or not _strong(after))
-        rnd = _round(ctx, out.effects, cost, current, suspects, opts)
+        rnd = _round(ctx, out.effects, cost, current, suspects, opts, guard)
         if rnd is None:
             break
         out.rounds.append(rnd)

@@ -22,7 +22,7 @@ from discrepancy.fit import GN_ITERATIONS, Comparison, FitResult, compare, fit
 from discrepancy.identify import FINALISTS, MAX_EFFECTS, POLISH, Identification, IdentifyOptions, identify
 from discrepancy.locate import ALPHA, Located, LocateResult, locate
 from discrepancy.noise import NoiseModel, NullSpec
-from discrepancy.redundancy import Check, check_all, sensor_suspects
+from discrepancy.redundancy import Check, check_all, fault_admissible, sensor_suspects
 from discrepancy.runner import CachedReplays, Runner, make_runner
 from discrepancy.screen import REFINE
 from discrepancy.twin import SimResult, Simulator, TwinSpec, check_compatible
@@ -171,9 +171,12 @@ def _run(train: EpisodeData, held: list[EpisodeData], spec: TwinSpec, route2: Si
         checks = check_all(spec.loader, train.signals, twin2.signals, null.channel_noise, train.dt)
         suspects = sensor_suspects(checks, {loc.signal for loc in found.located})
     with timer.step("identify"):
+        def guard(e: Effect) -> bool:
+            return fault_admissible(e, checks, train.signals, twin2.signals, null.channel_noise, train.time)
+
         ident = identify(ctx, found, suspects, IdentifyOptions(opts.max_effects, opts.refine, opts.candidates,
                                                                opts.null, opts.polish, opts.finalists,
-                                                               opts.budget, opts.time_budget))
+                                                               opts.budget, opts.time_budget), guard)
     named = ident.effects
     with timer.step("fit"):  # after a cut by the clock, one Gauss–Newton step only
         iterations = min(opts.gn_iterations, 1) if ctx.budget.cut == "time" else opts.gn_iterations

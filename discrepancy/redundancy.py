@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy import stats
@@ -109,6 +110,33 @@ def check(identity: Identity, real: Signals, twin: Signals, noise: Mapping[str, 
 
 def check_all(loader: LoaderSpec, real: Signals, twin: Signals, noise: Mapping[str, float], dt: float) -> list[Check]:
     return [c for i in identities(loader) if (c := check(i, real, twin, noise, dt)) is not None]
+
+
+def undo_fault(effect: Any, values: np.ndarray, time: np.ndarray) -> np.ndarray:
+    """What a channel read by a sensor with fault ``effect`` (bias, gain or delay) would read without it."""
+    p = effect.params
+    if effect.name == "sensor_bias":
+        return values - p["bias"]
+    if effect.name == "sensor_gain":
+        return values / (1.0 + p["gain_error"])
+    return np.interp(time + max(p["delay"], 0.0), time, values, right=values[-1])
+
+
+def fault_admissible(effect: Any, checks: list[Check], real: Signals, twin: Signals, noise: Mapping[str, float],
+                     time: np.ndarray) -> bool:
+    """May a sensor fault on a channel that an intact algebraic identity guards explain it? Yes when undoing the
+    fault leaves every such identity intact too: the identity cannot tell the fault from no fault (e.g. a small
+    gain error on the smaller component of a pin force barely moves its magnitude). No when undoing it would
+    break one: the identity holds, so the channel reads right."""
+    dt = float(np.median(np.diff(time)))
+    for c in checks:
+        if c.identity.algebraic and not c.broken and effect.target in c.identity.gated:
+            undone = dict(real)
+            undone[effect.target] = undo_fault(effect, np.asarray(real[effect.target], float), time)
+            again = check(c.identity, undone, twin, noise, dt)
+            if again is not None and again.broken:
+                return False
+    return True
 
 
 def sensor_suspects(checks: list[Check], located: set[str]) -> set[str]:
