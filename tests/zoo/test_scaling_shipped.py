@@ -78,9 +78,9 @@ def test_scale_force_reproduces_the_miniature_validation(name: str, models: dict
         held = model.scale_force(None, mini_rows.drop(columns=["episode"]), hold=mini["hold_steps"] or None)
     actual = mini_rows["F21"].to_numpy()
     pct = 100 * (out.force - actual) / actual
-    # FFNNs serve with nn.Linear's own arithmetic; the GRU kernel writes nn.GRU's equations out step by step, which
-    # changes float32 rounding (~1e-6 relative), so its errors match to 1e-4 percentage points
-    tol = 1e-4 if model.recurrent else 1e-6
+    # serving kernels (bare addmm; nn.GRU's equations written out) round float32 differently from the torch modules
+    # the card was evaluated with (~1e-6 relative, depending on the BLAS path), so errors match to 1e-4 points
+    tol = 1e-4
     np.testing.assert_allclose(pct, mini["pct_error"], atol=tol)
     assert np.mean(np.abs(pct)) == pytest.approx(mini["mean_abs_pct_error"], abs=tol)
     assert np.all(out.lower <= out.force) and np.all(out.force <= out.upper)
