@@ -50,11 +50,29 @@ def versions() -> dict[str, str]:
 
 
 def machine() -> dict[str, Any]:
-    """Where it ran: platform, processor, number of CPUs."""
+    """Where it ran: platform, processor, CPU model and widest SIMD set, number of CPUs.
+
+    The CPU matters for reproduction: float32 BLAS kernels differ between instruction sets, so a fit repeats bit
+    for bit on the same kind of CPU and only to rounding (which long fits amplify) on another.
+    """
     import os
 
+    cpu_model, simd = _cpu()
     return {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
-            "cpus": os.cpu_count()}
+            "cpu_model": cpu_model, "simd": simd, "cpus": os.cpu_count()}
+
+
+def _cpu() -> tuple[str, str]:
+    """CPU model name and widest x86 SIMD extension from ``/proc/cpuinfo`` ("unknown" elsewhere)."""
+    try:
+        info = Path("/proc/cpuinfo").read_text(encoding="utf-8")
+    except OSError:
+        return "unknown", "unknown"
+    fields = dict(line.split(":", 1) for line in info.splitlines() if ":" in line)
+    fields = {k.strip(): v.strip() for k, v in fields.items()}
+    flags = set(fields.get("flags", "").split())
+    simd = next((f for f in ("avx512f", "avx2", "avx", "sse4_2") if f in flags), "unknown")
+    return fields.get("model name", "unknown"), simd
 
 
 def provenance(kind: str, params: Mapping[str, Any] | None = None, seed: int | None = None,
