@@ -94,6 +94,8 @@ def test_end_to_end_run_writes_a_complete_model_directory(run) -> None:
         prov = json.loads((mdir / "provenance.json").read_text())
         assert prov["code_version"] and prov["seed"] == 0 and prov["data_hashes"]["train"]
         assert prov["params"]["config"]
+        assert prov["machine"]["simd"] in {"avx512f", "avx2", "avx", "sse4_2", "unknown"}
+        assert prov["machine"]["cpu_model"]  # reproduction bit for bit needs the same kind of CPU
     metrics = read_metrics(out)
     assert set(metrics["models"]) == set(result.models)
     assert "r2_dig" in metrics["models"]["ffnn"] and np.isfinite(metrics["models"]["ffnn"]["r2"])
