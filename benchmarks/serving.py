@@ -35,7 +35,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 import zoo  # noqa: E402
-from scaling.provenance import code_version, machine, versions  # noqa: E402
+from scaling.provenance import code_version, machine_line, versions  # noqa: E402
 from zoo.build import ENTRIES  # noqa: E402
 from zoo.scaling_kind import check_rows  # noqa: E402
 from zoo.serving.kernels import CHUNK, EnsembleKernel, GRUKernel  # noqa: E402
@@ -164,9 +164,8 @@ def main() -> None:
 
 def report(results: list[dict[str, Any]], rows: int, load_start: float) -> str:
     """The Markdown of ``benchmarks/results/serving.md``."""
-    info, cores = machine(), results[0]["cores"]
-    lines = [f"# serving ({dt.datetime.now(dt.UTC):%Y-%m-%d %H:%M} UTC, {info['processor']}, {info['cpus']} CPUs, "
-             f"{info['platform']})", "",
+    cores = results[0]["cores"]
+    lines = [f"# serving ({dt.datetime.now(dt.UTC):%Y-%m-%d %H:%M} UTC, {machine_line()})", "",
              f"Code `{code_version()}`; {versions()}.", "",
              "One prediction (one thread) = raw SI target quantities → F21 with its interval and extrapolation check "
              "(`predict_row`; GRU: `stream.push`, state carried). Plain torch = the same network's forward pass on "

@@ -62,6 +62,13 @@ def machine() -> dict[str, Any]:
             "cpu_model": cpu_model, "simd": simd, "cpus": os.cpu_count()}
 
 
+def machine_line(info: Mapping[str, Any] | None = None) -> str:
+    """One line naming the machine for benchmark headers, e.g. ``x86_64 AMD EPYC (avx512f), 2 CPUs, Linux-...``."""
+    info = machine() if info is None else info
+    return (f"{info['processor']} {info.get('cpu_model', 'unknown')} ({info.get('simd', 'unknown')}), "
+            f"{info['cpus']} CPUs, {info['platform']}")
+
+
 def _cpu() -> tuple[str, str]:
     """CPU model name and widest x86 SIMD extension from ``/proc/cpuinfo`` ("unknown" elsewhere)."""
     try:
