@@ -35,8 +35,9 @@ from zoo.scaling_kind import save_scaling_model
 from zoo.serving.model import served_variables
 
 #: The best configuration of the paper's FFNN grid (48 configurations, ``scaletwin reproduce``; the table is
-#: ``benchmarks/results/scaling_reproduce/grid_results.csv``, and a test checks this constant against it).
-FFNN_GRID_BEST: dict[str, Any] = {"hidden_layers": 3, "units": 16, "dropout": 0.0, "lr": 0.01}
+#: ``benchmarks/results/scaling_reproduce/grid_results.csv``, and a test checks this constant against it). The
+#: learning rate of the winner moves with float32 rounding across CPUs (0.01 on the 2026-11-22 host, 0.001 here).
+FFNN_GRID_BEST: dict[str, Any] = {"hidden_layers": 3, "units": 16, "dropout": 0.0, "lr": 0.001}
 #: Fraction of each feature's training span tolerated beyond its training min/max before warning (a target exactly
 #: at rest, a1 = 0, sits a hair beyond training rows with a1 ≈ 1e-5: that is not extrapolation).
 RANGE_MARGIN = 0.01
