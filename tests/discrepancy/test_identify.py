@@ -69,4 +69,5 @@ def test_out_of_catalogue_is_unexplained(name: str, size: float, twin) -> None:
     """Physics the catalogue has no entry for is reported as ``unexplained``, not as its closest entry alone."""
     real = record(twin, [], 0.01, twin.seed, ooc_physics(name, size, twin))
     d = diagnose(real.noisy, twin, options=DiagnoseOptions(workers=2))
-    assert d.located and UNEXPLAINED in d.named, d.named
+    assert d.located and d.named == [UNEXPLAINED], d.named
+    assert d.effects[0].confounded_with  # the closest catalogue entries are listed, not named
