@@ -21,6 +21,7 @@ import mujoco
 import numpy as np
 
 import scaletwin_envs
+from scaletwin_envs.host import host_line
 from scaletwin_envs.policies import ScriptedDigPolicy
 from scaletwin_envs.rollout import run_episode
 
@@ -67,7 +68,7 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--out", default="benchmarks/results/env_throughput.md")
     args = ap.parse_args()
-    lines = [f"# env_throughput ({dt.date.today()}, {platform.processor() or platform.machine()}, "
+    lines = [f"# env_throughput ({dt.date.today()}, {host_line()}, "
              f"python {platform.python_version()}, mujoco {mujoco.__version__})", "",
              "| preset | raw mj_step [steps/s] | env.step [physics steps/s] | ratio | env.step, no route-2 | ratio "
              "| real-time factor |", "|---|---|---|---|---|---|---|"]

@@ -29,6 +29,7 @@ import pyarrow
 import rerun as rr
 
 import scaletwin_envs
+from scaletwin_envs.host import host_line
 from scaletwin_envs.parallel import Executor, LocalProcessExecutor, SerialExecutor
 from scaletwin_envs.policies import ScriptedDigPolicy
 from scaletwin_envs.recording import SweepSpec, record_episode, run_sweep
@@ -139,10 +140,8 @@ def cpu_parallelism(n: int = 8) -> float:
 
 def header() -> list[str]:
     now = dt.datetime.now().astimezone().strftime("%Y-%m-%d %H:%M %Z")
-    machine = (f"{platform.machine()} {platform.processor() or ''}".strip() + f", {os.cpu_count()} cores, "
-               f"{platform.system()} {platform.release()}")
     return [f"# recording_overhead ({now})", "",
-            f"Machine: {machine}; python {platform.python_version()}, mujoco {mujoco.__version__}, "
+            f"Machine: {host_line()}; python {platform.python_version()}, mujoco {mujoco.__version__}, "
             f"pyarrow {pyarrow.__version__}, rerun-sdk {rr.__version__}, scaletwin {scaletwin_envs.__version__}.", ""]
 
 

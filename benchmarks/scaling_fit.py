@@ -21,12 +21,13 @@ from typing import Any
 
 import torch
 
+from scaletwin_envs.host import host_line
 from scaling import evaluation as ev
 from scaling.data import STANDARD, dataset_hash, load_or_generate
 from scaling.grid import DEFAULT_GRID, GridSearch, best_config
 from scaling.models import DirectPi
 from scaling.pipeline import FFNN_CONFIG, PipelineConfig, ScalingPipeline, model_specs
-from scaling.provenance import code_version, machine_line, versions
+from scaling.provenance import code_version, versions
 
 
 def timed(fn: Callable[..., Any], *args: Any, **kwargs: Any) -> tuple[Any, float]:
@@ -67,7 +68,7 @@ def main() -> None:
                                                 for _ in range(len(grid))])
     best = best_config(grid)
     n = len(grid)
-    lines = [f"# scaling_fit ({dt.date.today()}, {machine_line()})", "",
+    lines = [f"# scaling_fit ({dt.date.today()}, {host_line()})", "",
              f"Code `{code_version()}`; {versions()}.", "",
              f"Standard data set: {len(frame)} rows ({frame['episode'].nunique()} episodes, hash "
              f"`{dataset_hash(frame)}`), {len(train)} training and {len(test)} held-out δ1 pairs after the domain "

@@ -35,7 +35,8 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 import zoo  # noqa: E402
-from scaling.provenance import code_version, machine_line, versions  # noqa: E402
+from scaletwin_envs.host import host_line  # noqa: E402
+from scaling.provenance import code_version, versions  # noqa: E402
 from zoo.build import ENTRIES  # noqa: E402
 from zoo.scaling_kind import check_rows  # noqa: E402
 from zoo.serving.kernels import CHUNK, EnsembleKernel, GRUKernel  # noqa: E402
@@ -165,7 +166,7 @@ def main() -> None:
 def report(results: list[dict[str, Any]], rows: int, load_start: float) -> str:
     """The Markdown of ``benchmarks/results/serving.md``."""
     cores = results[0]["cores"]
-    lines = [f"# serving ({dt.datetime.now(dt.UTC):%Y-%m-%d %H:%M} UTC, {machine_line()})", "",
+    lines = [f"# serving ({dt.datetime.now(dt.UTC):%Y-%m-%d %H:%M} UTC, {host_line()})", "",
              f"Code `{code_version()}`; {versions()}.", "",
              "One prediction (one thread) = raw SI target quantities → F21 with its interval and extrapolation check "
              "(`predict_row`; GRU: `stream.push`, state carried). Plain torch = the same network's forward pass on "

@@ -13,7 +13,6 @@ travel to worker processes by pickling, so they must be picklable. Learned polic
 from __future__ import annotations
 
 import datetime as _dt
-import os
 import platform
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -25,6 +24,7 @@ import numpy as np
 import pandas as pd
 
 import scaletwin_envs
+from scaletwin_envs.host import host_line
 from scaletwin_envs.parallel import Executor, make_executor
 from scaletwin_envs.rollout import run_episode
 
@@ -138,10 +138,8 @@ def machine_info() -> str:
     import mujoco
     import torch
 
-    cpu = platform.processor() or platform.machine()
-    return (f"{_dt.date.today().isoformat()}, {platform.system()} {platform.machine()} ({cpu}), "
-            f"{os.cpu_count()} CPU cores, Python {platform.python_version()}, mujoco {mujoco.__version__}, "
-            f"torch {torch.__version__}")
+    return (f"{_dt.date.today().isoformat()}, {host_line()}, Python {platform.python_version()}, "
+            f"mujoco {mujoco.__version__}, torch {torch.__version__}")
 
 
 def write_markdown(summary: pd.DataFrame, path: str | Path, title: str = "Policy KPIs", notes: str = "") -> Path:

@@ -50,36 +50,10 @@ def versions() -> dict[str, str]:
 
 
 def machine() -> dict[str, Any]:
-    """Where it ran: platform, processor, CPU model and widest SIMD set, number of CPUs.
+    """Where it ran (:func:`scaletwin_envs.host.host`: the CPU model matters for bit-for-bit reproduction)."""
+    from scaletwin_envs.host import host
 
-    The CPU matters for reproduction: float32 BLAS kernels differ between instruction sets, so a fit repeats bit
-    for bit on the same kind of CPU and only to rounding (which long fits amplify) on another.
-    """
-    import os
-
-    cpu_model, simd = _cpu()
-    return {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
-            "cpu_model": cpu_model, "simd": simd, "cpus": os.cpu_count()}
-
-
-def machine_line(info: Mapping[str, Any] | None = None) -> str:
-    """One line naming the machine for benchmark headers, e.g. ``x86_64 AMD EPYC (avx512f), 2 CPUs, Linux-...``."""
-    info = machine() if info is None else info
-    return (f"{info['processor']} {info.get('cpu_model', 'unknown')} ({info.get('simd', 'unknown')}), "
-            f"{info['cpus']} CPUs, {info['platform']}")
-
-
-def _cpu() -> tuple[str, str]:
-    """CPU model name and widest x86 SIMD extension from ``/proc/cpuinfo`` ("unknown" elsewhere)."""
-    try:
-        info = Path("/proc/cpuinfo").read_text(encoding="utf-8")
-    except OSError:
-        return "unknown", "unknown"
-    fields = dict(line.split(":", 1) for line in info.splitlines() if ":" in line)
-    fields = {k.strip(): v.strip() for k, v in fields.items()}
-    flags = set(fields.get("flags", "").split())
-    simd = next((f for f in ("avx512f", "avx2", "avx", "sse4_2") if f in flags), "unknown")
-    return fields.get("model name", "unknown"), simd
+    return host()
 
 
 def provenance(kind: str, params: Mapping[str, Any] | None = None, seed: int | None = None,

@@ -1,0 +1,39 @@
+"""The machine a run or a benchmark ran on: processor, CPU model and widest SIMD set, core count, platform.
+
+The CPU matters for reproduction: float32 BLAS kernels differ between instruction sets, so a fit repeats bit for
+bit on the same kind of CPU and only to rounding (which long fits amplify) on another.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+from pathlib import Path
+from typing import Any
+
+#: x86 SIMD extensions, widest first (the first present is reported)
+SIMD_SETS = ("avx512f", "avx2", "avx", "sse4_2")
+
+
+def cpu() -> tuple[str, str]:
+    """CPU model name and widest x86 SIMD extension from ``/proc/cpuinfo`` ("unknown" where it is not readable)."""
+    try:
+        info = Path("/proc/cpuinfo").read_text(encoding="utf-8")
+    except OSError:
+        return "unknown", "unknown"
+    fields = {k.strip(): v.strip() for k, v in (line.split(":", 1) for line in info.splitlines() if ":" in line)}
+    flags = set(fields.get("flags", "").split())
+    return fields.get("model name", "unknown"), next((f for f in SIMD_SETS if f in flags), "unknown")
+
+
+def host() -> dict[str, Any]:
+    """Where it ran: platform, processor, CPU model, widest SIMD set, number of CPUs."""
+    cpu_model, simd = cpu()
+    return {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
+            "cpu_model": cpu_model, "simd": simd, "cpus": os.cpu_count()}
+
+
+def host_line() -> str:
+    """One line for result headers, e.g. ``x86_64 AMD EPYC (avx512f), 2 CPUs, Linux-...``."""
+    h = host()
+    return f"{h['processor']} {h['cpu_model']} ({h['simd']}), {h['cpus']} CPUs, {h['platform']}"
