@@ -16,8 +16,7 @@ from typing import Any
 from scaling.delta_dataset import DeltaDataset
 from scaling.factors import LogDistortion, distortions, prediction_factor, recover_target
 from scaling.groups import PiGroup
-from scaling.pi_sets import PiSet, enumerate_pi_sets, read_manifest, write_manifest
-from scaling.pi_theorem import pi_groups
+from scaling.pi_theorem import PiSet, enumerate_pi_sets, pi_groups, read_manifest, write_manifest
 from scaling.scorers import CrossValidatedR2, MutualInformation, PearsonRMS, Scorer, SpearmanRMS
 from scaling.selection import rank_pi_sets, select_pi_set
 
@@ -26,7 +25,7 @@ _LAZY: dict[str, str] = {
     "FFNN": "scaling.models", "GRUModel": "scaling.models", "DeepEnsemble": "scaling.models",
     "DirectPi": "scaling.models", "PowerLaw": "scaling.models", "DeltaModel": "scaling.models",
     "load_model": "scaling.models",
-    # group choice, data, pipeline, validation, reproduction
+    # group choice, data, pipeline, validation, grid search (the paper run: scaling.reproduce.reproduce)
     "EQ10": "scaling.group_choice", "EQ23": "scaling.group_choice", "choose_groups": "scaling.group_choice",
     "DatasetSpec": "scaling.data", "DataBundle": "scaling.data", "STANDARD": "scaling.data",
     "HELD_OUT": "scaling.data", "generate_frame": "scaling.data", "generate_recordings": "scaling.data",
@@ -34,7 +33,7 @@ _LAZY: dict[str, str] = {
     "ModelSpec": "scaling.pipeline", "PipelineConfig": "scaling.pipeline", "PipelineResult": "scaling.pipeline",
     "ScalingPipeline": "scaling.pipeline", "load_run": "scaling.run_io",
     "MiniValidation": "scaling.validation", "static_rows": "scaling.validation", "validate_mini": "scaling.validation",
-    "env_at_rest": "scaling.validation", "GridSearch": "scaling.grid", "reproduce": "scaling.reproduce",
+    "env_at_rest": "scaling.validation", "GridSearch": "scaling.grid",
 }
 
 

@@ -127,7 +127,7 @@ def simulate_episode(task: EpisodeTask) -> pd.DataFrame:
 
     Steps after a physics error (``info["sim_error"]``) are left out.
     """
-    env = gym.make(scaletwin_envs.ENV_ID, scale=task.scale, law=task.law, soil=task.soil,
+    env = gym.make(scaletwin_envs.ENV_ID, scale=task.machine(), law=task.law, soil=task.soil,
                    pile_distance=task.pile_distance, pile_height=task.pile_height, **task.env_kwargs)
     try:
         episode = run_episode(env, make_policy(task.policy, **task.policy_kwargs), seed=task.seed)

@@ -206,6 +206,41 @@ class DeltaDataset:
                    target_variable=var, dropped=dropped)
 
 
+    @classmethod
+    def from_matched(cls, source_rows: pd.DataFrame, target_rows: pd.DataFrame, output_group: PiGroup,
+                     input_groups: Sequence[PiGroup], *, target_variable: str | None = None,
+                     reference_id: int = 0) -> DeltaDataset:
+        """Row-aligned pairs: ``source_rows.iloc[i]`` is the source of ``target_rows.iloc[i]`` (e.g. its matched
+        row of another machine, :func:`scaling.product_line.match_rows`). Pairs with a non-finite group, a source
+        π_1 ≤ 0 or (labelled targets) δ1 ≤ 0 are dropped and counted in ``dropped``."""
+        if len(source_rows) != len(target_rows):
+            raise ValueError(f"source and target rows must align: {len(source_rows)} != {len(target_rows)}")
+        var, _ = scaled_variable(output_group, target_variable)
+        groups = tuple(input_groups)
+        src, tgt = source_rows.reset_index(drop=True), target_rows.reset_index(drop=True)
+        pi_s, pi_t = group_values(src, groups), group_values(tgt, groups)
+        pi1_s = output_group.evaluate(src).reshape(-1)
+        pi1_t = output_group.evaluate(tgt).reshape(-1) if var in tgt.columns else None
+        keep, dropped = _valid_mask(pi_t, rest_of_group(tgt, output_group, var), pi1_t)
+        bad_source = ~(np.all(np.isfinite(pi_s), axis=1) & np.isfinite(pi1_s) & (pi1_s > 0))
+        if n_bad := int(np.sum(bad_source & keep)):
+            dropped["source row not finite or π1 ≤ 0"] = n_bad
+        keep &= ~bad_source
+        rest = rest_of_group(tgt, output_group, var)
+        return cls(output_group=output_group, input_groups=groups, pi_source=pi_s[keep], pi_target=pi_t[keep],
+                   pi1_source=pi1_s[keep], pi1_target=None if pi1_t is None else pi1_t[keep], rest_target=rest[keep],
+                   machine=_column(tgt, "machine", keep, "target").astype(str),
+                   episode=_column(tgt, "episode", keep, 0).astype(np.int64),
+                   t=_column(tgt, "t", keep, 0.0).astype(float),
+                   reference=np.full(int(keep.sum()), reference_id, dtype=np.int64), target_variable=var,
+                   dropped=dropped)
+
+    def split_by_machine(self, test_machines: Sequence[str]) -> tuple[DeltaDataset, DeltaDataset]:
+        """(train, test): pairs whose *target* machine is in ``test_machines`` go to test (grouped split)."""
+        is_test = np.isin(self.machine.astype(str), [str(m) for m in test_machines])
+        return self.subset(~is_test), self.subset(is_test)
+
+
 _PAIR_FIELDS = ("pi_source", "pi_target", "pi1_source", "pi1_target", "rest_target", "machine", "episode", "t",
                 "reference")
 

@@ -30,8 +30,8 @@ with ε_n > 0 a small per-group scale and s_n ∈ {+1, −1} a per-group orienta
 is undefined; asinh is odd, so a group that is negative in both rows gives −ln d_n before orientation and
 +ln d_n after it.
 
-The learning data set of (source, target) pairs is :class:`scaling.delta_dataset.DeltaDataset` (also importable
-from here).
+The learning data set of (source, target) pairs, built on these functions, is
+:class:`scaling.delta_dataset.DeltaDataset`.
 
 All functions take raw signals in any consistent unit system: the groups are dimensionless, so δ1 and g do not
 depend on the units (N, m, kg, s or mm, g, ms).
@@ -240,11 +240,3 @@ class LogDistortion:
                    eps=None if eps is None else np.asarray(eps, dtype=float),
                    sign=None if sign is None else np.asarray(sign, dtype=float))
 
-
-def __getattr__(name: str) -> Any:
-    # The data set moved to scaling.delta_dataset (which builds on this module); keep the old import path working.
-    if name in ("DeltaDataset", "concat_datasets"):
-        from scaling import delta_dataset
-
-        return getattr(delta_dataset, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

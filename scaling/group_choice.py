@@ -36,8 +36,9 @@ import numpy as np
 import pandas as pd
 
 from scaling.groups import PiGroup
-from scaling.pi_sets import PiSet, enumerate_pi_sets
-from scaling.selection import Scorer, rank_pi_sets
+from scaling.pi_theorem import PiSet, enumerate_pi_sets
+from scaling.scorers import Scorer
+from scaling.selection import rank_pi_sets
 
 #: Eq. (10): F21 = F21(F31, Pf_tilt, Pf_lift, x_b, y_b, m_b, a1, α1), SI units.
 EQ10: dict[str, str] = {"F21": "N", "F31": "N", "Pf_tilt": "N", "Pf_lift": "N", "x_b": "m", "y_b": "m",

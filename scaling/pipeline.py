@@ -31,6 +31,7 @@ from tqdm.auto import tqdm
 from scaling import evaluation as ev
 from scaling.data import DataBundle
 from scaling.delta_dataset import DeltaDataset
+from scaling.fitted import model_groups
 from scaling.group_choice import GroupChoice, choose_groups
 from scaling.models import DeltaModel, model_class
 from scaling.validation import MiniValidation, validate_mini
@@ -232,8 +233,6 @@ class ScalingPipeline:
         return ds.subset(~is_test), ds.subset(is_test)
 
     def _held_out(self, model: DeltaModel, reference: pd.Series, frame: pd.DataFrame) -> dict[str, dict[str, Any]]:
-        from scaling.validation import model_groups
-
         output, inputs = model_groups(model)
         out = {}
         for machine in ev.machines(frame):

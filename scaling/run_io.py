@@ -7,7 +7,7 @@ Layout (JSON + safetensors + CSV + rerun files; no pickle)::
       provenance.json       code version, pipeline config, seed, data hashes, versions, machine
       reference.json        the source row (ER12; the paper's "model" row): every signal, SI
       mini.json             the miniature validation (``{"loads_kg": [...], "models": {...}}``)
-      groups/<eq>.json      the chosen group set (a scaling.pi_sets manifest), groups/<eq>_ranking.csv
+      groups/<eq>.json      the chosen group set (a scaling.pi_theorem manifest), groups/<eq>_ranking.csv
       models/<name>/        config.json + weights.safetensors (:meth:`DeltaModel.save`), metrics.json,
                             provenance.json, fit.rrd (rerun log of the fit)
 """
@@ -21,7 +21,7 @@ import numpy as np
 import pandas as pd
 
 from scaling.models import DeltaModel, load_model
-from scaling.pi_sets import write_manifest
+from scaling.pi_theorem import write_manifest
 from scaling.provenance import provenance, read_json, write_json
 
 if TYPE_CHECKING:

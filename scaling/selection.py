@@ -1,10 +1,11 @@
 """Scoring and ranking candidate pi-group sets against data, with a shuffled-data baseline.
 
-The paper's filter (:class:`PearsonRMS`): for a set, the score is the root mean square, over the non-target groups,
-of the Pearson correlation between the target group ``pi1`` and that group. Alternatives share one interface,
-:meth:`Scorer.score`, and are selected by name (:data:`SCORERS`) or passed as objects. Per-group scorers (Pearson,
-Spearman, ``MutualInformation(joint=False)``) reward sets whose groups each track ``pi1``; joint scorers
-(``MutualInformation()``, :class:`CrossValidatedR2`) measure how well the groups *together* determine ``pi1``.
+The paper's filter (:class:`~scaling.scorers.PearsonRMS`): for a set, the score is the root mean square, over the
+non-target groups, of the Pearson correlation between the target group ``pi1`` and that group. Alternatives share
+one interface, :meth:`~scaling.scorers.Scorer.score`, and are selected by name (:data:`~scaling.scorers.SCORERS`)
+or passed as objects. Per-group scorers (Pearson, Spearman, ``MutualInformation(joint=False)``) reward sets whose
+groups each track ``pi1``; joint scorers (``MutualInformation()``, :class:`~scaling.scorers.CrossValidatedR2`)
+measure how well the groups *together* determine ``pi1``.
 Note that all complete sets of one problem span the same groups (Buckingham), so a joint score differs between
 them only through noise and the spread of ``pi1``; it is most useful to compare different variable lists.
 
@@ -24,7 +25,7 @@ left with fewer rows than the scorer needs gets a NaN score *and* a ``note`` say
 Data must be in one coherent unit system (SI, or mm-g-ms, ...); convert mixed units first, e.g. with
 :func:`scaling.units.conversion_factor`.
 
-Scorers live in :mod:`scaling.scorers` (re-exported here).
+The scorers themselves live in :mod:`scaling.scorers`.
 """
 
 from __future__ import annotations
@@ -37,19 +38,10 @@ import numpy as np
 import pandas as pd
 
 from scaling.groups import PiGroup
-from scaling.pi_sets import PiSet
-from scaling.scorers import (
-    SCORERS,
-    CrossValidatedR2,
-    MutualInformation,
-    PearsonRMS,
-    Scorer,
-    SpearmanRMS,
-    get_scorer,
-)
+from scaling.pi_theorem import PiSet
+from scaling.scorers import Scorer, get_scorer
 
-__all__ = ["SCORERS", "CrossValidatedR2", "DataLike", "MutualInformation", "PearsonRMS", "RankBy", "Scorer",
-           "SpearmanRMS", "as_columns", "get_scorer", "rank_pi_sets", "select_pi_set"]
+__all__ = ["DataLike", "RankBy", "as_columns", "rank_pi_sets", "select_pi_set"]
 
 DataLike = Mapping[str, np.ndarray] | pd.DataFrame
 RankBy = Literal["score", "excess", "z"]
@@ -79,7 +71,8 @@ def rank_pi_sets(sets: Sequence[PiSet], data: DataLike, scorer: str | Scorer = "
     Args:
         sets: candidate sets sharing one target (e.g. from :func:`scaling.pi_theorem.enumerate_pi_sets`).
         data: raw variables by name, any consistent units (groups are dimensionless).
-        scorer: a :class:`Scorer` or a name in :data:`SCORERS` (``"pearson"`` is the paper's filter).
+        scorer: a :class:`~scaling.scorers.Scorer` or a name in :data:`~scaling.scorers.SCORERS` (``"pearson"`` is
+            the paper's filter).
         n_shuffles: shuffled datasets for the baseline; 0 (no baseline) or >= 2.
         seed: seeds the permutations, so rankings are reproducible.
         rank_by: ``"score"`` (the paper; default), ``"excess"`` (score minus baseline mean) or ``"z"``. Ties

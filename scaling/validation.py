@@ -13,8 +13,8 @@ Prediction (δ1 convention of :mod:`scaling.factors`): source = one reference ro
 from the distortions of the miniature's groups, and F21_mini = F31_mini · π1(source) / δ1 (Eq. 22). ``direct-pi``
 is δ1 ≡ 1 (direct Buckingham-Pi scaling). Errors are signed percentages ``100·(predicted − actual)/actual``.
 
-Recurrent models see each load as a sequence of :data:`STATIC_STEPS` identical rows (the machine at rest for a
-while) and are read at its last step.
+Recurrent models see each load as a sequence of :data:`scaling.fitted.STATIC_STEPS` identical rows (the machine at
+rest for a while) and are read at its last step.
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ from scaletwin_envs.runtime import qpos_for_pose, set_payload
 from scaletwin_envs.signals import SignalReader
 from scaletwin_envs.specs import LoaderSpec, make_loader
 from scaling.delta_dataset import DeltaDataset
-from scaling.groups import PiGroup
+from scaling.fitted import STATIC_STEPS, model_groups
 from scaling.models import DeepEnsemble, DeltaModel, GRUModel
 from scaling.plots import plot_error_vs_load
 
@@ -47,8 +47,6 @@ from scaling.plots import plot_error_vs_load
 CARRY_POSE: dict[str, float] = {"boom": 0.35, "pitch": 0.6}
 #: The paper's load range: 0.5–4 kg in 8 steps.
 LOADS: tuple[float, ...] = tuple(float(x) for x in np.linspace(0.5, 4.0, 8))
-#: Length of the constant sequence a recurrent model sees per static load.
-STATIC_STEPS = 30
 DIRECT_PI = "direct-pi"
 
 
@@ -101,17 +99,9 @@ def env_at_rest(spec: str | LoaderSpec, load: float, boom: float = CARRY_POSE["b
     return SignalReader(model, areas, loader.weight).read(data, np.zeros(2), two_routes=False)
 
 
-def model_groups(model: DeltaModel) -> tuple[PiGroup, tuple[PiGroup, ...]]:
-    """π1 and the input groups a fitted model was trained on."""
-    if model.groups_ is None:
-        raise RuntimeError(f"{model.name} is not fitted")
-    return (PiGroup.from_dict(model.groups_["output"]),
-            tuple(PiGroup.from_dict(g) for g in model.groups_["inputs"]))
-
-
 def static_pairs(model: DeltaModel, reference: pd.Series, rows: pd.DataFrame) -> tuple[DeltaDataset, np.ndarray]:
     """(pairs, index of the row each prediction belongs to) for ``model``: one pair per row, or the last step of
-    a constant :data:`STATIC_STEPS` sequence per row for recurrent models."""
+    a constant :data:`~scaling.fitted.STATIC_STEPS` sequence per row for recurrent models."""
     output, inputs = model_groups(model)
     if not isinstance(model, GRUModel):
         return DeltaDataset.from_pairs(reference, rows, output, inputs, warn=False), np.arange(len(rows))

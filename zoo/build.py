@@ -23,13 +23,13 @@ import pandas as pd
 from scaletwin_envs.signals import SIGNAL_UNITS
 from scaling import evaluation as ev
 from scaling.data import HELD_OUT, STANDARD, DataBundle, DatasetSpec, load_or_generate
-from scaling.factors import DeltaDataset
+from scaling.delta_dataset import DeltaDataset
+from scaling.fitted import STATIC_STEPS, model_groups
 from scaling.group_choice import EQ10, EQ23, POSE
 from scaling.models import DeepEnsemble, DeltaModel, GRUModel, r2_score
 from scaling.pipeline import ModelSpec, PipelineConfig, PipelineResult, Prepared, ScalingPipeline, model_specs
 from scaling.provenance import code_version, machine, to_jsonable
 from scaling.provenance import versions as scaling_versions
-from scaling.validation import STATIC_STEPS, model_groups
 from zoo.registry import REGISTRY_PATH, ZOO_ROOT, register
 from zoo.scaling_kind import save_scaling_model
 from zoo.serving.model import served_variables

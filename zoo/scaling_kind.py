@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from scaling.delta_dataset import DeltaDataset
 from scaling.models import DeltaModel, load_model
 from scaling.models.base import CONFIG_FILE, WEIGHTS_FILE
 from zoo.checkpoint import CARD_NAME, finish_checkpoint, prepare_directory
@@ -114,8 +115,6 @@ def _check_round_trip(model: DeltaModel, directory: Path) -> None:
 
 def reference_prediction(model: DeltaModel, served: ScalingModel, rows: pd.DataFrame) -> np.ndarray:
     """δ1 of ``rows`` predicted through the scaling package (DeltaDataset + model.predict), in the row order."""
-    from scaling.factors import DeltaDataset
-
     si = rows.rename(columns=lambda c: split_header(c)[0])
     pairs = DeltaDataset.from_pairs(served.reference, si, served.output_group, served.input_groups, warn=False)
     if len(pairs) != len(si):

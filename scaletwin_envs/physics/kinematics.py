@@ -114,3 +114,23 @@ def pose_from_cylinders(g: LinkageGeometry, lift_length: float, tilt_length: flo
 
 def _wrap(a: float) -> float:
     return float((a + np.pi) % (2 * np.pi) - np.pi)
+
+
+def tilt_ratio(g: LinkageGeometry, boom: float, pitch: float) -> float:
+    """Force ratio of the tilt linkage, F21 / tilt-cylinder force, with massless bell crank and link B (1).
+
+    Link B is a two-force member, so F21 acts along it; the bell crank's moment balance about its pivot then gives
+    ``F21 · r_B = F_tilt · r_tilt`` with ``r`` the perpendicular distance of the pivot from each force's line. The
+    ratio depends on the design and the pose only (boom angle and absolute bucket pitch, rad), which is why the
+    machine's geometry and pose carry what Eq. (10)'s groups cannot: how a cylinder force reaches the pin.
+
+    Raises:
+        LinkageUnreachable: the pose cannot be assembled.
+    """
+    pts = solve_pose(g, boom, pitch - boom).points
+    c = pts["bell_crank_pivot"]
+    u_tilt = pts["bell_crank_top"] - pts["tilt_frame_pin"]
+    u_b = pts["pin_21"] - pts["bell_crank_bottom"]
+    r_tilt = abs(cross2(pts["bell_crank_top"] - c, u_tilt / np.linalg.norm(u_tilt)))
+    r_b = abs(cross2(pts["bell_crank_bottom"] - c, u_b / np.linalg.norm(u_b)))
+    return float(r_tilt / r_b) if r_b > 0 else float("inf")

@@ -31,6 +31,7 @@ from scaletwin_envs.recording.atomic import write_text_atomic
 from scaletwin_envs.recording.recorder import record_episode
 from scaletwin_envs.recording.recording import read_recording
 from scaletwin_envs.recording.schema import SCHEMA_VERSION
+from scaletwin_envs.specs.loader import LoaderSpec
 
 MANIFEST = "manifest.json"
 SERIAL_MAX = 8  # sweeps with at most this many episodes to run go serially when no executor is given
@@ -65,7 +66,7 @@ def policy_name(policy: str | PolicyFactory) -> str:
 class EpisodeTask:
     """One episode of a sweep (picklable; all fields JSON values)."""
 
-    scale: float | str
+    scale: float | str | dict[str, Any]
     soil: str
     pile_distance: float
     pile_height: float
@@ -77,6 +78,11 @@ class EpisodeTask:
 
     def params(self) -> dict[str, Any]:
         return asdict(self)
+
+    def machine(self) -> float | str | LoaderSpec:
+        """The ``scale`` argument of the env: a preset, a length ratio, or a :class:`LoaderSpec` given as its
+        dictionary (:meth:`LoaderSpec.to_dict`, e.g. a machine of the product-line design space)."""
+        return LoaderSpec.from_dict(self.scale) if isinstance(self.scale, Mapping) else self.scale
 
     def key(self) -> str:
         """Stable hash of the parameters and the recording schema version (16 hex digits)."""
@@ -139,7 +145,7 @@ def run_task(job: tuple[EpisodeTask, str]) -> dict[str, Any]:
         return {**summary, "status": "done"}
     start = time.perf_counter()
     try:
-        env = gym.make(scaletwin_envs.ENV_ID, scale=task.scale, law=task.law, soil=task.soil,
+        env = gym.make(scaletwin_envs.ENV_ID, scale=task.machine(), law=task.law, soil=task.soil,
                        pile_distance=task.pile_distance, pile_height=task.pile_height, **task.env_kwargs)
         try:
             rec = record_episode(env, make_policy(task.policy, **task.policy_kwargs), task.seed)

@@ -298,7 +298,7 @@ def test_unlabelled_pairs_predict_target(rec: pd.DataFrame) -> None:
         DeltaDataset.from_pairs(rec.iloc[:2], tgt, PI1, INPUTS)
 
 
-def test_old_import_path_of_the_data_set() -> None:
-    assert factors.DeltaDataset is DeltaDataset and factors.concat_datasets is concat_datasets
-    with pytest.raises(AttributeError):
-        _ = factors.NoSuchName
+def test_the_data_set_lives_in_delta_dataset_only() -> None:
+    """No redirect: :mod:`scaling.factors` is the layer below the data set and does not re-export it."""
+    assert DeltaDataset.__module__ == concat_datasets.__module__ == "scaling.delta_dataset"
+    assert not hasattr(factors, "DeltaDataset") and not hasattr(factors, "concat_datasets")

@@ -31,9 +31,9 @@ import numpy as np
 import pandas as pd
 
 from scaling.factors import scaled_variable
+from scaling.fitted import STATIC_STEPS, model_groups
 from scaling.groups import PiGroup
 from scaling.models import DeltaModel
-from scaling.validation import STATIC_STEPS, model_groups
 from zoo.serving.inputs import InputError, Rows, split_header, to_matrix
 from zoo.serving.kernels import CHUNK, EnsembleKernel, Features, GroupPlan, GRUKernel, kernel_for, normal_quantile
 from zoo.serving.parallel import map_ordered, resolve_threads
@@ -209,7 +209,7 @@ class ScalingModel:
                 report the last step. Otherwise a recurrent model runs the rows as time series: one per ``episode``
                 (sorted by ``t``) if the target has those columns, else one. A target made only of lone rows (every
                 episode one row long, as in :func:`scaling.validation.static_rows`) has no history to run, so each
-                row is held for :data:`~scaling.validation.STATIC_STEPS` steps, as in the miniature validation.
+                row is held for :data:`~scaling.fitted.STATIC_STEPS` steps, as in the miniature validation.
             threads: cores for a large batch (default every usable core; see :meth:`predict_array`).
 
         Raises:

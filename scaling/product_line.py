@@ -1,0 +1,237 @@
+"""Scaling across a product line: many sampled machines, design-aware groups, matched pairs, grouped splits.
+
+The paper trains δ1 on two machines of one design; a product line differs in linkage, hydraulics, masses, bucket
+and traction (:mod:`scaletwin_envs.specs.design_space`). This module turns such a line into δ1 learning data:
+
+* :class:`ProductLine`: a seeded sample of the design space and the :class:`~scaling.data.DatasetSpec` that digs
+  and holds with every machine (resumable, fanned out through the executor seam like every data set);
+* :func:`add_design_signals`: per-row quantities that follow from the machine's *design* and its measured pose,
+  dimensionless: ``tilt_ratio`` (F21 per tilt-cylinder force of the massless linkage at that pose,
+  :func:`~scaletwin_envs.physics.kinematics.tilt_ratio`), ``tilt_stroke`` / ``lift_stroke`` (cylinder extension
+  per stroke: where the end stops are) and ``fill`` (load / rated load). A maker knows its machines' drawings and
+  every loader measures boom and bucket angles or cylinder strokes, so none of them needs a load pin;
+* :func:`match_rows`: for each target row the source row of the same kind (dig or hold) nearest in pose and fill:
+  δ1 between matched rows measures the machines' difference, not the difference between two moments of a cycle;
+* :func:`training_pairs`: every row of every machine as a target, with matched rows of other machines as sources,
+  so that any calibrated machine can be the source;
+* :func:`machine_folds`: grouped K-fold over machines (no machine on both sides).
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from fractions import Fraction
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from scipy.spatial import cKDTree
+
+from scaletwin_envs.physics.kinematics import LinkageUnreachable, tilt_ratio
+from scaletwin_envs.specs.design_space import DesignSpace, ProductLineMachine
+from scaletwin_envs.specs.loader import LoaderSpec, make_loader
+from scaling.data import SOILS, DatasetSpec
+from scaling.delta_dataset import DeltaDataset, concat_datasets
+from scaling.groups import PiGroup
+
+#: Design signals (all dimensionless) added by :func:`add_design_signals`.
+DESIGN_SIGNALS: dict[str, str] = {"tilt_ratio": "1", "tilt_stroke": "1", "lift_stroke": "1", "fill": "1"}
+#: The linkage groups appended by the ``+linkage`` group sets (each a dimensionless variable by itself).
+LINKAGE_GROUPS: tuple[PiGroup, ...] = tuple(PiGroup({v: Fraction(1)}, name=v)
+                                            for v in ("tilt_ratio", "tilt_stroke", "lift_stroke"))
+#: Columns a source row is matched on (after the row kind), in their units: rad, rad, 1.
+MATCH_KEYS: tuple[str, ...] = ("boom_angle", "bucket_pitch", "fill")
+#: Fill is weighted so that 10 % of rated load counts as much as 0.1 rad of pose.
+MATCH_WEIGHTS: tuple[float, ...] = (1.0, 1.0, 1.0)
+
+
+@dataclass(frozen=True)
+class ProductLine:
+    """A seeded sample of ``n_machines`` from ``space`` and what each of them digs.
+
+    Attributes:
+        soils, pile_heights, dig_seeds: dig episodes per machine (every combination × ``dig_seeds``).
+        hold_episodes, hold_poses: static-hold episodes per machine and carry poses per episode.
+        presets: extra named machines added to the line (``("er12",)``), labelled by their preset name.
+    """
+
+    n_machines: int = 32
+    seed: int = 0
+    space: DesignSpace = field(default_factory=DesignSpace)
+    soils: tuple[str, ...] = SOILS
+    pile_heights: tuple[float, ...] = (0.6, 0.8)
+    dig_seeds: int = 1
+    hold_episodes: int = 4
+    hold_poses: int = 3
+    presets: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        if self.n_machines < 0 or self.dig_seeds < 0 or self.hold_episodes < 0:
+            raise ValueError("n_machines, dig_seeds and hold_episodes must be >= 0")
+
+    @functools.cached_property
+    def machines(self) -> tuple[ProductLineMachine, ...]:
+        """The sampled machines (seeded: machine i depends on (seed, i) only)."""
+        return tuple(self.space.sample(self.n_machines, self.seed))
+
+    def specs(self) -> dict[str, LoaderSpec]:
+        """Machine label → spec, presets included."""
+        return {**{p: make_loader(p) for p in self.presets}, **{m.name: m.spec for m in self.machines}}
+
+    def dataset_spec(self) -> DatasetSpec:
+        """The episodes to simulate; machines are passed to the env as spec dictionaries (JSON)."""
+        machines = tuple((p, p) for p in self.presets) + tuple((m.name, m.spec.to_dict()) for m in self.machines)
+        return DatasetSpec(machines=machines, soils=self.soils, pile_heights=self.pile_heights,
+                           dig_seeds=self.dig_seeds, hold_episodes=self.hold_episodes, hold_poses=self.hold_poses,
+                           seed=1_000_000 * (self.seed + 1))
+
+    def distortions(self) -> pd.DataFrame:
+        """One row per sampled machine: its design vector (:meth:`DesignSpace.draw` keys) and validity values."""
+        rows = [{"machine": m.name, **m.distortion, **{k: v for k, v in m.validity.to_dict().items()
+                                                        if k not in ("reasons", "assembles")}}
+                for m in self.machines]
+        return pd.DataFrame(rows)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"n_machines": self.n_machines, "seed": self.seed, "space": self.space.to_dict(),
+                "soils": list(self.soils), "pile_heights": list(self.pile_heights), "dig_seeds": self.dig_seeds,
+                "hold_episodes": self.hold_episodes, "hold_poses": self.hold_poses, "presets": list(self.presets)}
+
+
+def add_design_signals(frame: pd.DataFrame, specs: Mapping[str, LoaderSpec]) -> pd.DataFrame:
+    """``frame`` with :data:`DESIGN_SIGNALS` computed from each row's machine spec and pose.
+
+    Args:
+        frame: rows with ``machine``, ``boom_angle``, ``bucket_pitch`` (rad), ``lift_extension``,
+            ``tilt_extension`` (m) and ``m_load`` (kg).
+        specs: machine label → :class:`LoaderSpec` (the design each row was measured on).
+
+    Raises:
+        KeyError: a machine of ``frame`` has no spec, or a needed column is missing.
+    """
+    need = ["machine", "boom_angle", "bucket_pitch", "lift_extension", "tilt_extension", "m_load"]
+    if missing := [c for c in need if c not in frame.columns]:
+        raise KeyError(f"design signals need columns {missing}")
+    labels = frame["machine"].astype(str)
+    if unknown := sorted(set(labels) - set(specs)):
+        raise KeyError(f"no machine spec for {unknown}; pass specs for every machine of the frame")
+    out = frame.copy()
+    ratio = np.full(len(frame), np.nan)
+    for name, idx in labels.groupby(labels).indices.items():
+        spec = specs[name]
+        boom, pitch = frame["boom_angle"].to_numpy(float)[idx], frame["bucket_pitch"].to_numpy(float)[idx]
+        ratio[idx] = [_ratio(spec, b, p) for b, p in zip(boom, pitch, strict=True)]
+    stroke = {n: (s.lift.stroke, s.tilt.stroke, s.rated_load) for n, s in specs.items()}
+    lift_s, tilt_s, rated = (labels.map({n: v[i] for n, v in stroke.items()}).to_numpy(float) for i in range(3))
+    out["tilt_ratio"] = ratio
+    out["tilt_stroke"] = frame["tilt_extension"].to_numpy(float) / tilt_s
+    out["lift_stroke"] = frame["lift_extension"].to_numpy(float) / lift_s
+    out["fill"] = frame["m_load"].to_numpy(float) / rated
+    return out
+
+
+def _ratio(spec: LoaderSpec, boom: float, pitch: float) -> float:
+    try:
+        return tilt_ratio(spec.geometry, float(boom), float(pitch))
+    except LinkageUnreachable:
+        return float("nan")
+
+
+def match_rows(source: pd.DataFrame, target: pd.DataFrame, keys: Sequence[str] = MATCH_KEYS,
+               weights: Sequence[float] = MATCH_WEIGHTS) -> np.ndarray:
+    """Positional index into ``source`` of the matched row of every ``target`` row: same ``kind`` (when both
+    have one; any kind where the source has none of it), nearest in the weighted ``keys``.
+
+    Raises:
+        KeyError: a key is missing.  ValueError: ``source`` is empty.
+    """
+    if len(source) == 0:
+        raise ValueError("no source rows to match against")
+    if missing := [k for k in keys if k not in source.columns or k not in target.columns]:
+        raise KeyError(f"matching needs columns {missing} in source and target")
+    w = np.asarray(weights, dtype=float)
+    s = np.nan_to_num(source[list(keys)].to_numpy(float)) * w
+    t = np.nan_to_num(target[list(keys)].to_numpy(float)) * w
+    out = np.empty(len(target), dtype=np.int64)
+    s_kind = source["kind"].astype(str).to_numpy() if "kind" in source.columns else np.full(len(source), "")
+    t_kind = target["kind"].astype(str).to_numpy() if "kind" in target.columns else np.full(len(target), "")
+    for kind in np.unique(t_kind):
+        ti = np.nonzero(t_kind == kind)[0]
+        si = np.nonzero(s_kind == kind)[0]
+        if si.size == 0:
+            si = np.arange(len(source))
+        _, nearest = cKDTree(s[si]).query(t[ti])
+        out[ti] = si[nearest]
+    return out
+
+
+def matched_pairs(source: pd.DataFrame, target: pd.DataFrame, output_group: PiGroup,
+                  input_groups: Sequence[PiGroup], reference_id: int = 0) -> DeltaDataset:
+    """Every ``target`` row paired with its matched ``source`` row (:func:`match_rows`)."""
+    idx = match_rows(source, target)
+    return DeltaDataset.from_matched(source.iloc[idx], target, output_group, input_groups,
+                                     reference_id=reference_id)
+
+
+def training_pairs(frame: pd.DataFrame, output_group: PiGroup, input_groups: Sequence[PiGroup],
+                   n_sources: int = 1, seed: int = 0) -> DeltaDataset:
+    """Pairs for learning δ1 across a product line: each machine's rows as targets, each with matched rows of
+    ``n_sources`` other machines drawn at random (seeded) as sources; ``reference`` = the source draw (0..)."""
+    machines = sorted(frame["machine"].astype(str).unique())
+    if len(machines) < 2:
+        raise ValueError(f"training pairs need at least two machines, got {machines}")
+    rng = np.random.default_rng(seed)
+    by_machine = {m: frame[frame["machine"].astype(str) == m] for m in machines}
+    parts = []
+    for m in machines:
+        others = [o for o in machines if o != m]
+        for r, src in enumerate(rng.choice(others, size=min(n_sources, len(others)), replace=False)):
+            parts.append(matched_pairs(by_machine[str(src)], by_machine[m], output_group, input_groups, r))
+    return concat_datasets(parts)
+
+
+def machine_folds(machines: Sequence[str], k: int, seed: int = 0) -> list[tuple[list[str], list[str]]]:
+    """Grouped K-fold over machines: ``k`` (train, test) splits, every machine in exactly one test fold.
+
+    Raises:
+        ValueError: ``k < 2`` or more folds than machines.
+    """
+    names = sorted({str(m) for m in machines})
+    if not 2 <= k <= len(names):
+        raise ValueError(f"need 2 <= k <= number of machines ({len(names)}), got k={k}")
+    order = np.random.default_rng(seed).permutation(len(names))
+    folds = [sorted(names[i] for i in order[j::k]) for j in range(k)]
+    return [([n for n in names if n not in test], test) for test in folds]
+
+
+def design_descriptor(spec: LoaderSpec) -> np.ndarray:
+    """A machine's design as a dimensionless vector (lengths per boom length L, forces per operating weight W,
+    speeds per √(gL)): the pins that may move, bucket capacity / L³, mass / L³ (kg/m³), cylinder force at relief
+    / W and flow-limited speed for both circuits, traction, travel speed. Used to find a target's nearest
+    calibrated machine and to score how far it lies from the machines a model was trained on."""
+    from scaletwin_envs.specs.design_space import MOVABLE_PINS
+    from scaletwin_envs.specs.loader import GRAVITY
+
+    g = spec.geometry
+    L = g.boom_length
+    px, pz = g.boom_pivot
+    pins = [c for p in MOVABLE_PINS for c in ((getattr(g, p)[0] - px) / L, (getattr(g, p)[1] - pz) / L)]
+    froude = np.sqrt(GRAVITY * L)
+    return np.array([
+        *pins, np.log(spec.heaped_capacity / L**3), np.log(spec.operating_mass / L**3),
+        np.log(spec.lift.max_extend_force / spec.weight), np.log(spec.tilt.max_extend_force / spec.weight),
+        np.log(spec.lift.extend_speed / froude), np.log(spec.tilt.extend_speed / froude),
+        spec.traction_coefficient, np.log(spec.travel_speed / froude),
+    ])
+
+
+def nearest_machine(target: LoaderSpec, candidates: Mapping[str, LoaderSpec]) -> str:
+    """The candidate whose :func:`design_descriptor` is nearest to the target's (standardised over candidates)."""
+    names = sorted(candidates)
+    x = np.array([design_descriptor(candidates[n]) for n in names])
+    sd = x.std(axis=0)
+    sd[sd == 0] = 1.0
+    d = np.linalg.norm((x - design_descriptor(target)) / sd, axis=1)
+    return names[int(np.argmin(d))]
