@@ -22,10 +22,18 @@ from dataclasses import dataclass
 import numpy as np
 
 
-def group_weighted_quantile(scores: np.ndarray, groups: np.ndarray, level: float) -> float:
-    """The ``level`` quantile of ``scores`` with every group weighing the same (each row 1/n_group), with the
-    conformal finite-sample correction on the number of groups: level' = min(1, level·(G + 1)/G)."""
+def group_weighted_quantile(scores: np.ndarray, groups: np.ndarray, level: float, *,
+                            finite_sample: bool = False) -> float:
+    """The ``level`` quantile of ``scores`` with every group weighing the same (each row 1/n_group).
+
+    ``finite_sample=True`` raises the level to min(1, level·(G + 1)/G) for G groups, the split-conformal correction
+    when each group is one exchangeable unit: with fewer than level/(1 − level) groups (9 at 90 %) it returns the
+    largest score, which certifies coverage but is uselessly wide. The default is the plain weighted quantile, whose
+    coverage of a new group's rows holds as the number of calibration groups grows (Barber et al. 2021, §6).
+    """
     s, g = np.asarray(scores, dtype=float), np.asarray(groups).astype(str)
+    if not 0 < level < 1:
+        raise ValueError(f"level must be in (0, 1), got {level}")
     ok = np.isfinite(s)
     s, g = s[ok], g[ok]
     if s.size == 0:
@@ -36,7 +44,7 @@ def group_weighted_quantile(scores: np.ndarray, groups: np.ndarray, level: float
     order = np.argsort(s)
     cdf = np.cumsum(w[order])
     n_groups = len(names)
-    target = min(1.0, level * (n_groups + 1) / n_groups)
+    target = min(1.0, level * (n_groups + 1) / n_groups) if finite_sample else level
     return float(s[order][min(int(np.searchsorted(cdf, target - 1e-12)), s.size - 1)])
 
 
@@ -50,6 +58,7 @@ class GroupConformal:
     """
 
     coverage: float = 0.9
+    finite_sample: bool = False
     quantile_: float | None = None
     n_groups_: int = 0
 
@@ -61,7 +70,8 @@ class GroupConformal:
             raise ValueError("residual, scale and groups must have one entry per row")
         if np.any(sc[np.isfinite(sc)] <= 0):
             raise ValueError("scales must be > 0")
-        self.quantile_ = group_weighted_quantile(np.abs(r) / sc, np.asarray(groups), self.coverage)
+        self.quantile_ = group_weighted_quantile(np.abs(r) / sc, np.asarray(groups), self.coverage,
+                                                 finite_sample=self.finite_sample)
         self.n_groups_ = len(set(np.asarray(groups).astype(str)))
         return self
 

@@ -9,7 +9,10 @@ and traction (:mod:`scaletwin_envs.specs.design_space`). This module turns such 
   dimensionless: ``tilt_ratio`` (F21 per tilt-cylinder force of the massless linkage at that pose,
   :func:`~scaletwin_envs.physics.kinematics.tilt_ratio`), ``tilt_stroke`` / ``lift_stroke`` (cylinder extension
   per stroke: where the end stops are) and ``fill`` (load / rated load). A maker knows its machines' drawings and
-  every loader measures boom and bucket angles or cylinder strokes, so none of them needs a load pin;
+  every loader measures boom and bucket angles or cylinder strokes, so none of them needs a load pin; and
+  ``F21_linkage`` = tilt_ratio · |Pf_tilt| (N), the pin force of the massless linkage, which normalises F21 in
+  the output group :data:`PI1_LINKAGE` (the ML then learns only what the statics leave out: link weights,
+  inertia, end stops);
 * :func:`match_rows`: for each target row the source row of the same kind (dig or hold) nearest in pose and fill:
   δ1 between matched rows measures the machines' difference, not the difference between two moments of a cycle;
 * :func:`training_pairs`: every row of every machine as a target, with matched rows of other machines as sources,
@@ -37,7 +40,10 @@ from scaling.delta_dataset import DeltaDataset, concat_datasets
 from scaling.groups import PiGroup
 
 #: Design signals (all dimensionless) added by :func:`add_design_signals`.
-DESIGN_SIGNALS: dict[str, str] = {"tilt_ratio": "1", "tilt_stroke": "1", "lift_stroke": "1", "fill": "1"}
+DESIGN_SIGNALS: dict[str, str] = {"tilt_ratio": "1", "tilt_stroke": "1", "lift_stroke": "1", "fill": "1",
+                                  "F21_linkage": "N"}
+#: π1 normalised by the linkage statics: F21 / (tilt_ratio · |Pf_tilt|), ≈ 1 wherever the massless linkage holds.
+PI1_LINKAGE = PiGroup({"F21": Fraction(1), "F21_linkage": Fraction(-1)}, name="pi1_linkage")
 #: The linkage groups appended by the ``+linkage`` group sets (each a dimensionless variable by itself).
 LINKAGE_GROUPS: tuple[PiGroup, ...] = tuple(PiGroup({v: Fraction(1)}, name=v)
                                             for v in ("tilt_ratio", "tilt_stroke", "lift_stroke"))
@@ -111,7 +117,7 @@ def add_design_signals(frame: pd.DataFrame, specs: Mapping[str, LoaderSpec]) -> 
     Raises:
         KeyError: a machine of ``frame`` has no spec, or a needed column is missing.
     """
-    need = ["machine", "boom_angle", "bucket_pitch", "lift_extension", "tilt_extension", "m_load"]
+    need = ["machine", "boom_angle", "bucket_pitch", "lift_extension", "tilt_extension", "m_load", "Pf_tilt"]
     if missing := [c for c in need if c not in frame.columns]:
         raise KeyError(f"design signals need columns {missing}")
     labels = frame["machine"].astype(str)
@@ -129,6 +135,7 @@ def add_design_signals(frame: pd.DataFrame, specs: Mapping[str, LoaderSpec]) -> 
     out["tilt_stroke"] = frame["tilt_extension"].to_numpy(float) / tilt_s
     out["lift_stroke"] = frame["lift_extension"].to_numpy(float) / lift_s
     out["fill"] = frame["m_load"].to_numpy(float) / rated
+    out["F21_linkage"] = ratio * np.abs(frame["Pf_tilt"].to_numpy(float))
     return out
 
 

@@ -26,7 +26,12 @@ A sample is kept only if it is *valid* (:func:`check_design`):
 * breakout force / operating weight 0.6–1.1 (``physics.md``: rule of thumb 0.7–1.0 for 3–20 t machines; widened
   to cover the 0.6–0.7 of 20–50 t machines, which the same note says fall with size);
 * full raise time 5–7 s for 3–30 t machines (``physics.md``: cycle times stay nearly constant in seconds; the
-  ER12 on the estimate hydraulics raises in 6.4 s). Outside 3–30 t no band is claimed.
+  ER12 on the estimate hydraulics raises in 6.4 s). Outside 3–30 t no band is claimed;
+* no dead centre within the strokes: the tilt linkage's force ratio F21 / tilt force
+  (:func:`~scaletwin_envs.physics.kinematics.tilt_ratio`) stays in 0.6–2.0 at every assembled pair of cylinder
+  lengths on a grid over both strokes. The ER12 spans 1.02–1.33; near a dead centre the ratio collapses to 0 or
+  diverges, the cylinder can neither hold nor move the bucket there, and the simulated linkage jumps to its other
+  assembly branch (a design rule of ours, no published band).
 
 Rejected draws are counted (:attr:`ProductLineMachine.rejected`); sampling is seeded and reproducible: sample
 ``i`` of :meth:`DesignSpace.sample` depends only on ``(seed, i)``.
@@ -54,6 +59,8 @@ BUCKET_M3_PER_T = (0.12, 0.25)
 BREAKOUT_PER_WEIGHT = (0.6, 1.1)
 RAISE_TIME_S = (5.0, 7.0)
 RAISE_TIME_MASS_T = (3.0, 30.0)
+#: Band of the tilt linkage's force ratio over the whole strokes (module docstring).
+TILT_RATIO_BAND = (0.6, 2.0)
 #: Grid points per cylinder stroke in the assembly check.
 ASSEMBLY_GRID = 9
 #: Draws tried per sample before giving up (a design space this narrow never needs more than a few).
@@ -87,6 +94,7 @@ class Validity:
     breakout_per_weight: float
     raise_time_s: float
     operating_mass_t: float
+    tilt_ratio_range: tuple[float, float] = (float("nan"), float("nan"))
     reasons: tuple[str, ...] = ()
 
     @property
@@ -96,7 +104,8 @@ class Validity:
     def to_dict(self) -> dict[str, Any]:
         return {"assembles": self.assembles, "bucket_m3_per_t": self.bucket_m3_per_t,
                 "breakout_per_weight": self.breakout_per_weight, "raise_time_s": self.raise_time_s,
-                "operating_mass_t": self.operating_mass_t, "reasons": list(self.reasons)}
+                "operating_mass_t": self.operating_mass_t, "tilt_ratio_min": self.tilt_ratio_range[0],
+                "tilt_ratio_max": self.tilt_ratio_range[1], "reasons": list(self.reasons)}
 
 
 def assembles_over_workspace(spec: LoaderSpec, workspace: Sequence[tuple[float, float]] | None = None) -> bool:
@@ -110,6 +119,22 @@ def assembles_over_workspace(spec: LoaderSpec, workspace: Sequence[tuple[float, 
         except LinkageUnreachable:
             return False
     return True
+
+
+def tilt_ratio_range(spec: LoaderSpec, n: int = ASSEMBLY_GRID) -> tuple[float, float]:
+    """(min, max) of the tilt linkage's force ratio over every assembled pair of cylinder lengths on an ``n`` × ``n``
+    grid over both strokes (1; NaN if none assembles)."""
+    from scaletwin_envs.physics.kinematics import LinkageUnreachable, pose_from_cylinders, tilt_ratio
+
+    ratios = []
+    for lift in np.linspace(spec.lift.closed_length, spec.lift.closed_length + spec.lift.stroke, n):
+        for tilt in np.linspace(spec.tilt.closed_length, spec.tilt.closed_length + spec.tilt.stroke, n):
+            try:
+                pose = pose_from_cylinders(spec.geometry, float(lift), float(tilt))
+            except LinkageUnreachable:
+                continue
+            ratios.append(tilt_ratio(spec.geometry, pose.boom, pose.bucket_pitch))
+    return (float(min(ratios)), float(max(ratios))) if ratios else (float("nan"), float("nan"))
 
 
 def _stretched_workspace(spec: LoaderSpec) -> list[tuple[float, float]]:
@@ -135,6 +160,11 @@ def check_design(spec: LoaderSpec) -> Validity:
     if not ok_assembly:
         reasons.append("the linkage does not assemble over the dig workspace")
     breakout = breakout_force(spec) / spec.weight if ok_assembly else float("nan")
+    ratio = tilt_ratio_range(spec)
+    lo, hi = TILT_RATIO_BAND
+    if not lo <= ratio[0] <= ratio[1] <= hi:
+        reasons.append(f"tilt linkage force ratio {ratio[0]:.2f}–{ratio[1]:.2f} leaves [{lo}, {hi}] within the "
+                       "strokes (a dead centre)")
     lo, hi = BUCKET_M3_PER_T
     if not lo <= m3_per_t <= hi:
         reasons.append(f"bucket {m3_per_t:.3f} m³/t outside [{lo}, {hi}]")
@@ -144,7 +174,8 @@ def check_design(spec: LoaderSpec) -> Validity:
     lo, hi = RAISE_TIME_S
     if RAISE_TIME_MASS_T[0] <= mass_t <= RAISE_TIME_MASS_T[1] and not lo <= raise_s <= hi:
         reasons.append(f"full raise {raise_s:.2f} s outside [{lo}, {hi}] s for a {mass_t:.1f} t machine")
-    return Validity(ok_assembly, float(m3_per_t), float(breakout), float(raise_s), float(mass_t), tuple(reasons))
+    return Validity(ok_assembly, float(m3_per_t), float(breakout), float(raise_s), float(mass_t), ratio,
+                    tuple(reasons))
 
 
 @dataclass(frozen=True)
@@ -322,6 +353,7 @@ def build_design(distortion: Mapping[str, float], name: str = "design") -> Loade
                             base.tilt.stroke)
     m = base.masses
     mass = d.get("mass", 1.0)
+    lift, tilt = (replace(c, barrel_mass=c.barrel_mass * mass, rod_mass=c.rod_mass * mass) for c in (lift, tilt))
     masses = MassProperties(bucket=m.bucket * mass * d.get("bucket_mass", 1.0), link_b=m.link_b * mass,
                             bell_crank=m.bell_crank * mass, boom=m.boom * mass * d.get("boom_mass", 1.0),
                             chassis=m.chassis * mass)

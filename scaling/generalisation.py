@@ -1,0 +1,242 @@
+"""Leave-machine-out proof: fit δ1 on some machines of a product line, judge it on machines it never saw.
+
+Three disjoint sets of machines (grouped, never rows of one machine on two sides):
+
+* **train**: pairs of matched rows between training machines (:func:`scaling.product_line.training_pairs`);
+* **calibration**: machines held out of training that set the conformal interval width and the extrapolation
+  threshold (:mod:`scaling.conformal`);
+* **test**: machines drawn with another seed, plus presets (the simulated miniature), reported one by one.
+
+A target machine is predicted from its *source*: the training machine nearest in design
+(:func:`~scaling.product_line.nearest_machine`), every target row paired with that machine's matched row. Beside
+every model stand baselines: direct Buckingham-Pi (δ1 ≡ 1) with matched rows of the ER12 and of the nearest
+training machine, and the linkage statics F21 ≈ tilt_ratio · |Pf_tilt| (design and pose only, no learning).
+
+Rows judged: after the start-up settling (:func:`scaling.evaluation.after_settling`) and with F21 above 5 % of
+the machine's peak (relative errors on a vanishing force mean nothing); *static* rows (inertial groups below
+0.1 % of F31, :func:`scaling.evaluation.at_rest`: the loaded bucket held still) and *dynamic* rows (the rest: the
+dig cycles and the moves between holds) apart.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from scaletwin_envs.specs.loader import LoaderSpec
+from scaling.conformal import ExtrapolationScore, GroupConformal, auroc
+from scaling.delta_dataset import DeltaDataset
+from scaling.evaluation import after_settling, at_rest, in_domain
+from scaling.group_choice import PI1
+from scaling.groups import PiGroup
+from scaling.models import DeepEnsemble, DeltaModel
+from scaling.product_line import design_descriptor, matched_pairs, nearest_machine, training_pairs
+
+#: Rows with F21 below this fraction of the machine's peak are not judged.
+PEAK_FRACTION = 0.05
+#: An error above this (relative) counts as a miss for the extrapolation score's AUROC.
+MISS = 0.10
+
+
+@dataclass
+class Candidate:
+    """A model to judge: a factory of an unfitted :class:`DeltaModel` and its input groups."""
+
+    name: str
+    build: Callable[[], DeltaModel]
+    groups: tuple[PiGroup, ...]
+    output: PiGroup = PI1
+
+
+@dataclass
+class Split:
+    """The machines of each side and every machine's spec (label → LoaderSpec)."""
+
+    train: tuple[str, ...]
+    calibration: tuple[str, ...]
+    test: tuple[str, ...]
+    specs: Mapping[str, LoaderSpec]
+    reference: str = "er12"
+
+    def __post_init__(self) -> None:
+        sides = [set(self.train), set(self.calibration), set(self.test)]
+        if any(a & b for i, a in enumerate(sides) for b in sides[i + 1:]):
+            raise ValueError("a machine is on two sides of the split")
+        if missing := sorted(set().union(*sides) - set(self.specs)):
+            raise ValueError(f"no spec for machines {missing}")
+        if self.reference not in self.train:
+            raise ValueError(f"the reference machine {self.reference!r} must be a training machine")
+
+
+@dataclass
+class MachineResult:
+    """Per held-out machine and model: errors in % on dynamic and static rows, peak F21 error (dynamic rows),
+    90 % interval coverage, judged rows and the share of them more than 10 % off."""
+
+    machine: str
+    model: str
+    source: str
+    dynamic_mape: float
+    dynamic_median: float
+    static_mape: float
+    static_median: float
+    peak_error: float
+    coverage: float
+    rows: int
+    miss_share: float
+
+
+@dataclass
+class GeneralisationResult:
+    rows: list[MachineResult]
+    extrapolation: dict[str, Any] = field(default_factory=dict)
+    fit_seconds: dict[str, float] = field(default_factory=dict)
+
+    def frame(self) -> pd.DataFrame:
+        return pd.DataFrame([r.__dict__ for r in self.rows])
+
+
+def judged_rows(frame: pd.DataFrame) -> np.ndarray:
+    """Mask of rows judged (module docstring)."""
+    peak = frame.groupby("machine")["F21"].transform("max").to_numpy(float)
+    return after_settling(frame) & (frame["F21"].to_numpy(float) > PEAK_FRACTION * peak)
+
+
+def training_rows(frame: pd.DataFrame, groups: Sequence[PiGroup]) -> pd.DataFrame:
+    """Rows fit for training: settled, inside the scaling domain (π1 ≥ 0.1), every group finite."""
+    ok = after_settling(frame) & in_domain(frame)
+    for g in groups:
+        ok &= np.isfinite(g.evaluate(frame).reshape(-1))
+    return frame[ok].reset_index(drop=True)
+
+
+def _predict(model: DeltaModel | None, pairs: DeltaDataset) -> tuple[np.ndarray, np.ndarray]:
+    """(ln δ1, scale of its uncertainty) per pair; δ1 ≡ 1 for the direct-Pi baseline (model None)."""
+    if model is None:
+        return np.zeros(len(pairs)), np.ones(len(pairs))
+    if isinstance(model, DeepEnsemble):
+        mean, var = model.predict_log_dist(pairs)
+        return mean, np.sqrt(np.maximum(var, 1e-12))
+    return model.predict_log(pairs), np.ones(len(pairs))
+
+
+def _errors(pred: np.ndarray, actual: np.ndarray) -> np.ndarray:
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.abs(pred - actual) / actual
+
+
+def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate], *, n_sources: int = 2,
+             seed: int = 0, progress: Callable[[str], None] | None = None) -> GeneralisationResult:
+    """Fit every candidate on the training machines, calibrate on the calibration machines, judge the test ones.
+
+    Args:
+        frame: rows of every machine of ``split`` with design signals
+            (:func:`scaling.product_line.add_design_signals`) and ``kind``.
+        n_sources: source machines per training target machine.
+    """
+    say = progress or (lambda _msg: None)
+    by_machine = {str(m): g.reset_index(drop=True) for m, g in frame.groupby(frame["machine"].astype(str))}
+    train_specs = {m: split.specs[m] for m in split.train}
+    source_of = {m: nearest_machine(split.specs[m], train_specs) for m in (*split.calibration, *split.test)}
+    results: list[MachineResult] = []
+    fit_seconds: dict[str, float] = {}
+    models: dict[str, DeltaModel | None] = {"direct-Pi (ER12)": None, "direct-Pi (nearest machine)": None}
+    # δ1 ≡ 1 needs no inputs; any group set builds its pairs
+    groups_of: dict[str, tuple[PiGroup, ...]] = {k: candidates[0].groups for k in models}
+    output_of: dict[str, PiGroup] = {k: PI1 for k in models}
+
+    for cand in candidates:
+        train = pd.concat([training_rows(by_machine[m], (*cand.groups, cand.output)) for m in split.train],
+                          ignore_index=True)
+        pairs = training_pairs(train, cand.output, cand.groups, n_sources=n_sources, seed=seed)
+        say(f"fitting {cand.name} on {len(pairs)} pairs of {len(split.train)} machines")
+        start = time.perf_counter()
+        models[cand.name] = cand.build().fit(pairs)
+        fit_seconds[cand.name] = time.perf_counter() - start
+        groups_of[cand.name], output_of[cand.name] = cand.groups, cand.output
+
+    def pairs_for(name: str, target: str) -> tuple[DeltaDataset, pd.DataFrame]:
+        src_machine = split.reference if name == "direct-Pi (ER12)" else source_of[target]
+        tgt = by_machine[target]
+        tgt = tgt[judged_rows(tgt)].reset_index(drop=True)
+        return matched_pairs(by_machine[src_machine], tgt, output_of[name], groups_of[name]), tgt
+
+    calibrators: dict[str, GroupConformal] = {}
+    for name, model in models.items():
+        res, sc, grp = [], [], []
+        for m in split.calibration:
+            pairs, _ = pairs_for(name, m)
+            log_pred, scale = _predict(model, pairs)
+            res.append(pairs.log_delta - log_pred)
+            sc.append(scale)
+            grp.append(np.full(len(pairs), m))
+        calibrators[name] = GroupConformal(0.9).fit(np.concatenate(res), np.concatenate(sc), np.concatenate(grp))
+
+    extrap = ExtrapolationScore().fit(np.array([design_descriptor(split.specs[m]) for m in split.train]))
+    extrap.calibrate(np.array([design_descriptor(split.specs[m]) for m in split.calibration]))
+    machine_score = {m: float(extrap.score(design_descriptor(split.specs[m]))[0]) for m in split.test}
+    auroc_rows: dict[str, tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]] = {}
+
+    for m in split.test:
+        say(f"judging {m} (source {source_of[m]})")
+        for name, model in models.items():
+            pairs, tgt = pairs_for(name, m)
+            log_pred, scale = _predict(model, pairs)
+            lo, hi = calibrators[name].interval(log_pred, scale)
+            f21 = pairs.target_values()
+            pred = pairs.recover(np.exp(log_pred))
+            err = _errors(pred, f21)
+            inside = (pairs.log_delta >= lo) & (pairs.log_delta <= hi)
+            kind = _kinds(pairs, tgt)
+            results.append(_summarise(m, name, source_of[m] if name != "direct-Pi (ER12)" else split.reference,
+                                      err, kind, pred, f21, inside))
+            bucket = auroc_rows.setdefault(name, ([], [], []))
+            bucket[0].append(np.full(len(err), machine_score[m]))
+            bucket[1].append(scale)
+            bucket[2].append(err > MISS)
+        tgt = by_machine[m]
+        tgt = tgt[judged_rows(tgt)].reset_index(drop=True)
+        f21 = tgt["F21"].to_numpy(float)
+        pred = tgt["tilt_ratio"].to_numpy(float) * np.abs(tgt["Pf_tilt"].to_numpy(float))
+        err = _errors(pred, f21)
+        label = np.where(at_rest(tgt), "static", "dynamic")
+        results.append(_summarise(m, "linkage statics", "-", err, label, pred, f21,
+                                  np.full(len(err), np.nan)))
+    extrap_out: dict[str, Any] = {"threshold": extrap.threshold_, "machine_score": machine_score,
+                                  "warned": {m: bool(s > extrap.threshold_) for m, s in machine_score.items()},
+                                  "auroc_design_distance": {}, "auroc_ensemble_spread": {}}
+    for name, (dist, spread, miss) in auroc_rows.items():
+        y = np.concatenate(miss)
+        extrap_out["auroc_design_distance"][name] = auroc(np.concatenate(dist), y)
+        if isinstance(models[name], DeepEnsemble):
+            extrap_out["auroc_ensemble_spread"][name] = auroc(np.concatenate(spread), y)
+    return GeneralisationResult(results, extrap_out, fit_seconds)
+
+
+def _kinds(pairs: DeltaDataset, tgt: pd.DataFrame) -> np.ndarray:
+    """``"static"`` or ``"dynamic"`` for every pair (pairs keep target rows in order, minus dropped ones: matched
+    back by (episode, time))."""
+    label = np.where(at_rest(tgt), "static", "dynamic")
+    lookup = dict(zip(zip(tgt["episode"].to_numpy(), tgt["t"].to_numpy(), strict=True), label, strict=True))
+    return np.array([lookup[(e, t)] for e, t in zip(pairs.episode, pairs.t, strict=True)])
+
+
+def _summarise(machine: str, model: str, source: str, err: np.ndarray, kind: np.ndarray, pred: np.ndarray,
+               f21: np.ndarray, inside: np.ndarray) -> MachineResult:
+    dig, hold = kind == "dynamic", kind == "static"
+
+    def pct(fn: Callable[[np.ndarray], float], mask: np.ndarray) -> float:
+        e = err[mask & np.isfinite(err)]
+        return 100.0 * float(fn(e)) if e.size else float("nan")
+
+    peak = float("nan")
+    if dig.any():
+        peak = 100.0 * abs(float(np.nanmax(pred[dig])) - float(np.max(f21[dig]))) / float(np.max(f21[dig]))
+    return MachineResult(machine, model, source, pct(np.mean, dig), pct(np.median, dig), pct(np.mean, hold),
+                         pct(np.median, hold), peak, float(np.nanmean(inside)) if np.isfinite(inside).any()
+                         else float("nan"), len(err), float(np.mean(err > MISS)))
