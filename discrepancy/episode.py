@@ -19,7 +19,7 @@ import pandas as pd
 
 from scaletwin_envs.recording import Provenance, Recording, import_recording
 from scaletwin_envs.recording.schema import COMMAND_COLUMNS
-from scaletwin_envs.signals import SIGNAL_UNITS
+from scaletwin_envs.signal_units import SIGNAL_UNITS
 from scaletwin_envs.specs.loader import LoaderSpec
 from scaletwin_envs.specs.soil import SoilSpec
 

@@ -12,7 +12,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from discrepancy.pipeline import Diagnosis
-from scaletwin_envs.signals import SIGNAL_UNITS
+from scaletwin_envs.signal_units import SIGNAL_UNITS
 
 
 def _traces(d: Diagnosis, stem: Path) -> Path:

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from scaletwin_envs.signals import SIGNAL_UNITS
+from scaletwin_envs.signal_units import SIGNAL_UNITS
 from scaling import evaluation as ev
 from scaling.data import HELD_OUT, STANDARD, DataBundle, DatasetSpec, load_or_generate
 from scaling.delta_dataset import DeltaDataset

@@ -11,23 +11,26 @@
 
 from __future__ import annotations
 
+import importlib
 from typing import Any
 
 from scaletwin_envs.recording.importer import import_recording
-from scaletwin_envs.recording.recorder import EpisodeRecorder, record_episode
 from scaletwin_envs.recording.recording import Provenance, Recording, read_recording
 from scaletwin_envs.recording.replay import make_twin, replay
 from scaletwin_envs.recording.schema import SCHEMA_VERSION
-from scaletwin_envs.recording.sweep import EpisodeTask, SweepSpec, load_dataset, run_sweep
 
-_LAZY = {"RerunLogger", "log_episode_rrd", "open_stream"}
+#: Names whose modules load MuJoCo (recorder, sweep) or rerun (rerun_log): imported on first use, so that reading
+#: recordings (serving, importers) loads neither. (``replay`` is eager: the function shares its module's name.)
+_LAZY: dict[str, str] = {
+    "EpisodeRecorder": "recorder", "record_episode": "recorder",
+    "EpisodeTask": "sweep", "SweepSpec": "sweep", "load_dataset": "sweep", "run_sweep": "sweep",
+    "RerunLogger": "rerun_log", "log_episode_rrd": "rerun_log", "open_stream": "rerun_log",
+}
 
 
 def __getattr__(name: str) -> Any:
     if name in _LAZY:
-        from scaletwin_envs.recording import rerun_log
-
-        return getattr(rerun_log, name)
+        return getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 

@@ -23,7 +23,7 @@ import pandas as pd
 import scaletwin_envs
 from scaletwin_envs.recording.recording import Provenance, Recording
 from scaletwin_envs.recording.schema import COMMAND_COLUMNS, EPISODE_NUMERIC, column_units, joint_units
-from scaletwin_envs.signals import SIGNAL_UNITS
+from scaletwin_envs.signal_units import SIGNAL_UNITS
 
 StepCallback = Callable[[int, np.ndarray, dict[str, Any]], None]
 #: Constructor arguments kept out of ``env_kwargs``: resolved into ``machine``/``soil``, or not physics.
@@ -206,7 +206,7 @@ def _env_id(env: gym.Env) -> str | None:
 def _check_signal_units(signals: Mapping[str, float]) -> None:
     unknown = sorted(set(signals) - set(SIGNAL_UNITS))
     if unknown:
-        raise ValueError(f"signals {unknown} have no unit; add them to scaletwin_envs.signals.SIGNAL_UNITS "
+        raise ValueError(f"signals {unknown} have no unit; add them to scaletwin_envs.signal_units.SIGNAL_UNITS "
                          f"(known: {sorted(SIGNAL_UNITS)})")
 
 

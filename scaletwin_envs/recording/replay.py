@@ -14,7 +14,6 @@ import gymnasium as gym
 import numpy as np
 
 import scaletwin_envs
-from scaletwin_envs.recording.recorder import record_episode
 from scaletwin_envs.recording.recording import Provenance, Recording
 
 
@@ -85,6 +84,8 @@ def replay(recording: Recording, env: gym.Env | None = None, seed: int | None = 
         raise ValueError("the recording has no seed; pass seed= to choose the twin's initial state")
     twin = env if env is not None else make_twin(prov)
     playback = CommandPlayback(recording.commands)
+    from scaletwin_envs.recording.recorder import record_episode  # the simulator side, loaded when replaying
+
     out = record_episode(twin, playback, seed, max_steps=len(recording),
                          policy_name=f"replay of {len(recording)} stored commands")
     replay_of = {"policy": prov.policy, "source": prov.source, "model_sha256": prov.model_sha256,

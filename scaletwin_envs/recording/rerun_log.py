@@ -30,7 +30,7 @@ from scaletwin_envs.recording.recorder import env_provenance
 from scaletwin_envs.recording.recording import Provenance, Recording
 from scaletwin_envs.recording.rerun_scene import SceneLogger, log_pile, send_load
 from scaletwin_envs.recording.schema import SCHEMA_VERSION
-from scaletwin_envs.signals import SIGNAL_UNITS
+from scaletwin_envs.signal_units import SIGNAL_UNITS
 
 APP_ID = "scaletwin"
 SIGNALS_PATH, GROUPS_PATH, PHASE_PATH, PHASE_LOG_PATH = "/signals", "/signals/groups", "/phase", "/phases"

@@ -6,7 +6,7 @@ the state and signals read at ``time``. Columns, in order:
 
 * ``step`` (1), ``time`` (s, end of the control interval);
 * :data:`COMMAND_COLUMNS`: normalised ``[lift, tilt, drive]`` commands in [-1, 1];
-* every signal of :data:`scaletwin_envs.signals.SIGNAL_UNITS` (Eq. (10)/(23), both routes, cylinder states,
+* every signal of :data:`scaletwin_envs.signal_units.SIGNAL_UNITS` (Eq. (10)/(23), both routes, cylinder states,
   pressures, ``m_load`` = loaded mass); a signal the env does not report is NaN;
 * joint states of the MuJoCo model: ``q_<joint>`` (rad or m) and ``qd_<joint>`` (rad/s or m/s);
 * :data:`EPISODE_UNITS`: fill factor, spilled mass, hydraulic work (cumulative), reward and the dig ``phase``
@@ -17,9 +17,9 @@ Units are pint-parsable strings; ``"1"`` marks a pure number and ``"-"`` a non-q
 
 from __future__ import annotations
 
-import mujoco
+from typing import TYPE_CHECKING
 
-from scaletwin_envs.signals import EQ10, EQ23, SIGNAL_UNITS
+from scaletwin_envs.signal_units import EQ10, EQ23, SIGNAL_UNITS
 
 #: Version of the column layout and metadata; bumped on any incompatible change.
 SCHEMA_VERSION = 1
@@ -40,7 +40,8 @@ DTYPES: dict[str, str] = {"step": "int64", "phase": "str"}
 #: Columns an imported (external) recording must provide: time, the commands, and the Eq. (10)/(23) signals.
 REQUIRED_IMPORT: tuple[str, ...] = ("time", *COMMAND_COLUMNS, *dict.fromkeys((*EQ10, *EQ23)))
 
-_JOINT_UNITS = {mujoco.mjtJoint.mjJNT_HINGE: ("rad", "rad/s"), mujoco.mjtJoint.mjJNT_SLIDE: ("m", "m/s")}
+if TYPE_CHECKING:
+    import mujoco
 
 
 def joint_units(model: mujoco.MjModel) -> dict[str, str]:
@@ -49,6 +50,9 @@ def joint_units(model: mujoco.MjModel) -> dict[str, str]:
     Raises:
         ValueError: a joint is unnamed or of a type with more than one degree of freedom (free, ball).
     """
+    import mujoco  # here, not at the top: reading and writing recordings must not load the simulator
+
+    _JOINT_UNITS = {mujoco.mjtJoint.mjJNT_HINGE: ("rad", "rad/s"), mujoco.mjtJoint.mjJNT_SLIDE: ("m", "m/s")}
     out: dict[str, str] = {}
     for j in range(model.njnt):
         name, kind = model.joint(j).name, mujoco.mjtJoint(model.jnt_type[j])

@@ -13,7 +13,7 @@ from scaletwin_envs.envs.wheel_loader_dig import WheelLoaderDigEnv
 from scaletwin_envs.policies import ScriptedDigPolicy
 from scaletwin_envs.recording import read_recording, record_episode, replay
 from scaletwin_envs.recording.replay import CommandPlayback, make_twin
-from scaletwin_envs.signals import EQ10, EQ23
+from scaletwin_envs.signal_units import EQ10, EQ23
 
 
 def test_replay_reproduces_signals_exactly(recorded, tmp_path):

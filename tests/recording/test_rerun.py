@@ -21,7 +21,7 @@ from scaletwin_envs.recording import Provenance, import_recording, log_episode_r
 from scaletwin_envs.recording.groups import GROUPS
 from scaletwin_envs.recording.rerun_scene import SceneLogger
 from scaletwin_envs.rollout import run_episode
-from scaletwin_envs.signals import EQ10, EQ23
+from scaletwin_envs.signal_units import EQ10, EQ23
 
 BODIES = ("frame", "boom", "bucket", "bell_crank", "link_b", "lift_barrel", "lift_rod", "tilt_barrel", "tilt_rod")
 

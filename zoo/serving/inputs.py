@@ -4,7 +4,7 @@ Accepted forms of the rows of a machine (source or target):
 
 * a :class:`pandas.DataFrame` (or a CSV/Parquet file, :func:`read_table`) whose columns are either ``name [unit]``
   (e.g. ``F31 [kN]``, ``x_b [mm]``; converted to SI with pint) or plain ``name`` in SI (the units of
-  :data:`scaletwin_envs.signals.SIGNAL_UNITS`; a frame's ``attrs["units"]``, as recordings carry, is checked);
+  :data:`scaletwin_envs.signal_units.SIGNAL_UNITS`; a frame's ``attrs["units"]``, as recordings carry, is checked);
 * a scaletwin :class:`~scaletwin_envs.recording.Recording` (its SI table and units);
 * a mapping ``{name or "name [unit]": value or array}`` (one row per element), a list of such mappings (one per
   row), or a :class:`pandas.Series` (one row);
@@ -29,7 +29,7 @@ import pyarrow.parquet as pq
 from scaletwin_envs.recording.importer import to_si
 from scaletwin_envs.recording.recording import Recording, read_recording
 from scaletwin_envs.recording.schema import METADATA_KEY
-from scaletwin_envs.signals import SIGNAL_UNITS
+from scaletwin_envs.signal_units import SIGNAL_UNITS
 
 Rows = (pd.DataFrame | pd.Series | Mapping[str, Any] | Sequence[Mapping[str, Any]] | Recording | np.ndarray
         | Sequence[float])
