@@ -242,3 +242,17 @@ def nearest_machine(target: LoaderSpec, candidates: Mapping[str, LoaderSpec]) ->
     sd[sd == 0] = 1.0
     d = np.linalg.norm((x - design_descriptor(target)) / sd, axis=1)
     return names[int(np.argmin(d))]
+
+
+def relief_share(frame: pd.DataFrame, specs: Mapping[str, LoaderSpec], level: float = 0.98) -> pd.Series:
+    """Per machine, the share of its dig-episode rows with the lift or tilt cylinder at ≥ ``level`` × its relief
+    pressure: a real loader's standard dig reaches relief only in short peaks; a twin that sits there sets its pin
+    forces by the relief valve rather than by the soil."""
+    dig = frame[frame["kind"].astype(str) == "dig"] if "kind" in frame.columns else frame
+    labels = dig["machine"].astype(str)
+    relief = {n: (s.lift.relief_pressure, s.tilt.relief_pressure) for n, s in specs.items()}
+    lift = labels.map({n: r[0] for n, r in relief.items()}).to_numpy(float)
+    tilt = labels.map({n: r[1] for n, r in relief.items()}).to_numpy(float)
+    at = ((np.abs(dig["p_lift"].to_numpy(float)) >= level * lift)
+          | (np.abs(dig["p_tilt"].to_numpy(float)) >= level * tilt))
+    return pd.Series(at, index=dig.index).groupby(labels).mean()

@@ -90,3 +90,17 @@ def test_product_line_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]
     assert cli_main(["product-line", str(out_dir), "--machines", "0"]) != 0
     assert cli_main(["product-line", str(out_dir), "--soils", "lava"]) != 0
     assert "lava" in capsys.readouterr().err
+
+
+def test_relief_share_counts_dig_rows_at_either_relief() -> None:
+    """A row counts when the lift or the tilt pressure reaches 98 % of that cylinder's relief (either sign);
+    hold episodes are left out."""
+    from scaletwin_envs.specs import make_loader
+    from scaling.product_line import relief_share
+
+    spec = make_loader("er12")
+    pl, pt = spec.lift.relief_pressure, spec.tilt.relief_pressure
+    frame = pd.DataFrame({"machine": "er12", "kind": ["dig"] * 4 + ["hold"],
+                          "p_lift": [0.99 * pl, 0.5 * pl, -0.99 * pl, 0.1 * pl, pl],
+                          "p_tilt": [0.0, 0.97 * pt, 0.0, -pt, pt]})
+    assert relief_share(frame, {"er12": spec})["er12"] == pytest.approx(3 / 4)
