@@ -1,7 +1,7 @@
 """Scaling across a product line: many sampled machines, design-aware groups, matched pairs, grouped splits.
 
 The paper trains δ1 on two machines of one design; a product line differs in linkage, hydraulics, masses, bucket
-and traction (:mod:`scaletwin_envs.specs.design_space`). This module turns such a line into δ1 learning data:
+and traction (:mod:`scaletwin_envs.design_space`). This module turns such a line into δ1 learning data:
 
 * :class:`ProductLine`: a seeded sample of the design space and the :class:`~scaling.data.DatasetSpec` that digs
   and holds with every machine (resumable, fanned out through the executor seam like every data set);
@@ -32,8 +32,8 @@ import numpy as np
 import pandas as pd
 from scipy.spatial import cKDTree
 
+from scaletwin_envs.design_space import DesignSpace, ProductLineMachine
 from scaletwin_envs.physics.kinematics import LinkageUnreachable, tilt_ratio
-from scaletwin_envs.specs.design_space import DesignSpace, ProductLineMachine
 from scaletwin_envs.specs.loader import LoaderSpec, make_loader
 from scaling.data import SOILS, DatasetSpec
 from scaling.delta_dataset import DeltaDataset, concat_datasets
@@ -218,7 +218,7 @@ def design_descriptor(spec: LoaderSpec) -> np.ndarray:
     speeds per √(gL)): the pins that may move, bucket capacity / L³, mass / L³ (kg/m³), cylinder force at relief
     / W and flow-limited speed for both circuits, traction, travel speed. Used to find a target's nearest
     calibrated machine and to score how far it lies from the machines a model was trained on."""
-    from scaletwin_envs.specs.design_space import MOVABLE_PINS
+    from scaletwin_envs.design_space import MOVABLE_PINS
     from scaletwin_envs.specs.loader import GRAVITY
 
     g = spec.geometry

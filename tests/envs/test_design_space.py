@@ -14,13 +14,7 @@ import numpy as np
 import pytest
 
 import scaletwin_envs
-from scaletwin_envs.physics.kinematics import boom_angle_for_lift_length, solve_pose, tilt_ratio
-from scaletwin_envs.physics.statics import static_at
-from scaletwin_envs.policies import ScriptedDigPolicy
-from scaletwin_envs.recording.sweep import EpisodeTask
-from scaletwin_envs.rollout import run_episode
-from scaletwin_envs.specs import design_space
-from scaletwin_envs.specs.design_space import (
+from scaletwin_envs.design_space import (
     BREAKOUT_PER_WEIGHT,
     BUCKET_M3_PER_T,
     MOVABLE_PINS,
@@ -33,6 +27,12 @@ from scaletwin_envs.specs.design_space import (
     check_design,
     reference_workspace,
 )
+from scaletwin_envs.physics.kinematics import boom_angle_for_lift_length, solve_pose, tilt_ratio
+from scaletwin_envs.physics.statics import static_at
+from scaletwin_envs.policies import ScriptedDigPolicy
+from scaletwin_envs.recording.sweep import EpisodeTask
+from scaletwin_envs.rollout import run_episode
+from scaletwin_envs import design_space
 from scaletwin_envs.specs.loader import LoaderSpec, make_loader
 
 #: Every factor key of a distortion vector and the DesignSpace range that bounds it.

@@ -10,8 +10,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from scaletwin_envs.design_space import DesignSpace, build_design
 from scaletwin_envs.physics.kinematics import LinkageUnreachable, pose_from_cylinders
-from scaletwin_envs.specs.design_space import DesignSpace, build_design
 from scaletwin_envs.specs.loader import GRAVITY, LoaderSpec, make_loader
 from scaling.conformal import (
     ExtrapolationScore,

@@ -48,6 +48,15 @@ from typing import Any
 
 import numpy as np
 
+from scaletwin_envs.physics.kinematics import (
+    LinkagePose,
+    LinkageUnreachable,
+    boom_angle_for_lift_length,
+    pose_from_cylinders,
+    solve_pose,
+    tilt_ratio,
+)
+from scaletwin_envs.physics.statics import breakout_force
 from scaletwin_envs.specs.laws import PRODUCT_LINE
 from scaletwin_envs.specs.loader import LoaderSpec, MassProperties, make_loader
 
@@ -67,22 +76,24 @@ ASSEMBLY_GRID = 9
 MAX_DRAWS = 200
 
 
+def stroke_poses(spec: LoaderSpec, n: int = ASSEMBLY_GRID) -> list[LinkagePose]:
+    """The assembled poses at every pair of cylinder lengths on an ``n`` × ``n`` grid over both strokes (pairs at
+    which the linkage cannot close are skipped)."""
+    poses = []
+    for lift in np.linspace(spec.lift.closed_length, spec.lift.closed_length + spec.lift.stroke, n):
+        for tilt in np.linspace(spec.tilt.closed_length, spec.tilt.closed_length + spec.tilt.stroke, n):
+            try:
+                poses.append(pose_from_cylinders(spec.geometry, float(lift), float(tilt)))
+            except LinkageUnreachable:
+                continue
+    return poses
+
+
 @functools.cache
 def reference_workspace(n: int = ASSEMBLY_GRID) -> tuple[tuple[float, float], ...]:
     """The ER12's dig workspace as (boom angle, bucket angle relative to the boom) poses, rad: every pose at which
     its linkage closes on an ``n`` × ``n`` grid of both cylinders' lengths over their strokes."""
-    from scaletwin_envs.physics.kinematics import LinkageUnreachable, pose_from_cylinders
-
-    er12 = make_loader("er12")
-    poses = []
-    for lift in np.linspace(er12.lift.closed_length, er12.lift.closed_length + er12.lift.stroke, n):
-        for tilt in np.linspace(er12.tilt.closed_length, er12.tilt.closed_length + er12.tilt.stroke, n):
-            try:
-                pose = pose_from_cylinders(er12.geometry, float(lift), float(tilt))
-            except LinkageUnreachable:
-                continue
-            poses.append((pose.boom, pose.bucket))
-    return tuple(poses)
+    return tuple((p.boom, p.bucket) for p in stroke_poses(make_loader("er12"), n))
 
 
 @dataclass(frozen=True)
@@ -111,8 +122,6 @@ class Validity:
 def assembles_over_workspace(spec: LoaderSpec, workspace: Sequence[tuple[float, float]] | None = None) -> bool:
     """True when the linkage closes at every (boom, bucket) pose of ``workspace`` (rad; default: the ER12's dig
     workspace, :func:`reference_workspace`, with the boom angles stretched by the design's raise range)."""
-    from scaletwin_envs.physics.kinematics import LinkageUnreachable, solve_pose
-
     for boom, bucket in workspace if workspace is not None else _stretched_workspace(spec):
         try:
             solve_pose(spec.geometry, boom, bucket)
@@ -122,24 +131,12 @@ def assembles_over_workspace(spec: LoaderSpec, workspace: Sequence[tuple[float, 
 
 
 def tilt_ratio_range(spec: LoaderSpec, n: int = ASSEMBLY_GRID) -> tuple[float, float]:
-    """(min, max) of the tilt linkage's force ratio over every assembled pair of cylinder lengths on an ``n`` × ``n``
-    grid over both strokes (1; NaN if none assembles)."""
-    from scaletwin_envs.physics.kinematics import LinkageUnreachable, pose_from_cylinders, tilt_ratio
-
-    ratios = []
-    for lift in np.linspace(spec.lift.closed_length, spec.lift.closed_length + spec.lift.stroke, n):
-        for tilt in np.linspace(spec.tilt.closed_length, spec.tilt.closed_length + spec.tilt.stroke, n):
-            try:
-                pose = pose_from_cylinders(spec.geometry, float(lift), float(tilt))
-            except LinkageUnreachable:
-                continue
-            ratios.append(tilt_ratio(spec.geometry, pose.boom, pose.bucket_pitch))
+    """(min, max) of the tilt linkage's force ratio over :func:`stroke_poses` (1; NaN if none assembles)."""
+    ratios = [tilt_ratio(spec.geometry, p.boom, p.bucket_pitch) for p in stroke_poses(spec, n)]
     return (float(min(ratios)), float(max(ratios))) if ratios else (float("nan"), float("nan"))
 
 
 def _stretched_workspace(spec: LoaderSpec) -> list[tuple[float, float]]:
-    from scaletwin_envs.physics.kinematics import boom_angle_for_lift_length
-
     poses = reference_workspace()
     lo = min(b for b, _ in poses)
     hi_ref = max(b for b, _ in poses)
@@ -150,8 +147,6 @@ def _stretched_workspace(spec: LoaderSpec) -> list[tuple[float, float]]:
 
 def check_design(spec: LoaderSpec) -> Validity:
     """Validity of a loader against the published bands (module docstring)."""
-    from scaletwin_envs.physics.statics import breakout_force
-
     reasons: list[str] = []
     mass_t = spec.operating_mass / 1000.0
     m3_per_t = spec.heaped_capacity / mass_t
@@ -304,8 +299,6 @@ def build_design(distortion: Mapping[str, float], name: str = "design") -> Loade
         ValueError: the vector is invalid (non-finite, factor <= 0, unknown key) or the linkage cannot be
             assembled at the ends of the ER12's boom and bucket ranges.
     """
-    from scaletwin_envs.physics.kinematics import LinkageUnreachable, solve_pose
-
     known = {"scale", *(f"pin.{p}.{a}" for p in MOVABLE_PINS for a in "xz"), "lift_bore", "tilt_bore", "pressure",
              "lift_flow", "tilt_flow", "lift_range", "mass", "boom_mass", "bucket_mass", "bucket_size",
              "bucket_depth", "traction", "travel_speed"}
