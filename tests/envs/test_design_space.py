@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 import scaletwin_envs
+from scaletwin_envs import design_space
 from scaletwin_envs.design_space import (
     BREAKOUT_PER_WEIGHT,
     BUCKET_M3_PER_T,
@@ -32,7 +33,6 @@ from scaletwin_envs.physics.statics import static_at
 from scaletwin_envs.policies import ScriptedDigPolicy
 from scaletwin_envs.recording.sweep import EpisodeTask
 from scaletwin_envs.rollout import run_episode
-from scaletwin_envs import design_space
 from scaletwin_envs.specs.loader import LoaderSpec, make_loader
 
 #: Every factor key of a distortion vector and the DesignSpace range that bounds it.
