@@ -1,13 +1,18 @@
 """The paper's Eq. (10) and Eq. (23) signals, read from a MuJoCo loader, with every pin force by two routes.
 
-Route 1 reads MuJoCo's constraint forces: ``F21`` from the ``link_b_to_bucket`` connect constraint, ``F31``
-from ``cfrc_int`` of the bucket subtree (its interaction with the boom at O), cylinder forces from the
-actuators. Route 2 is the planar Newton–Euler of the linkage (:mod:`scaletwin_envs.physics.newton_euler`)
-from kinematics, masses and the applied loads alone (gravity, soil, ground contact), never looking at a pin
-constraint force. Their difference is reported as ``residual_*`` (relative to the machine's weight).
+Route 1 reads MuJoCo's constraint forces: ``F21`` from the ``link_b_to_bucket`` connect constraint, ``F31`` from
+``cfrc_int`` of the bucket subtree (its interaction with the boom at O), cylinder forces ``Pf_*`` (and pressures
+``p_*``) as the force the oil exerts on the piston: the actuator's force less the forces MuJoCo applies on the slide
+in joint space, the armature (oil column inertia) and the damping (relief override). A velocity servo held at relief
+by an overrunning load alternates between its force limits from one physics step to the next while the slide's
+inertia absorbs the difference, so the bare actuator force, sampled once per control step, says nothing of the pin
+forces (it was up to 14× off on holds); the piston force is smooth, and it is what a pressure transducer on the
+cylinder reads. Route 2 is the planar Newton–Euler of the linkage (:mod:`scaletwin_envs.physics.newton_euler`) from
+kinematics, masses and the applied loads alone (gravity, soil, ground contact), never looking at a pin constraint
+force. Their difference is reported as ``residual_*`` (relative to the machine's weight).
 
-All signals are SI: forces N, lengths m, mass kg, accelerations m/s² (kinematic, not proper), angular
-accelerations rad/s², velocities m/s and rad/s. Planar vectors are (x forward, z up) in the world frame.
+All signals are SI: forces N, lengths m, mass kg, accelerations m/s² (kinematic, not proper), angular accelerations
+rad/s², velocities m/s and rad/s. Planar vectors are (x forward, z up) in the world frame.
 """
 
 from __future__ import annotations
@@ -158,7 +163,8 @@ class SignalReader:
         c, s = math.cos(pitch), math.sin(pitch)
         f21 = self._connect_force(data)
         f31 = _xz(data.cfrc_int[ids.bodies["bucket"]][3:])
-        pf = {c_: float(data.actuator_force[ids.actuators[c_]]) for c_ in ("lift", "tilt")}
+        actuator = {c_: float(data.actuator_force[ids.actuators[c_]]) for c_ in ("lift", "tilt")}
+        pf = {c_: actuator[c_] - self._armature_force(data, c_) for c_ in ("lift", "tilt")}  # force on the piston
         out = {
             "F21": float(np.hypot(*f21)), "F31": float(np.hypot(*f31)), "Pf_tilt": pf["tilt"], "Pf_lift": pf["lift"],
             "x_b": c * r[0] + s * r[1], "y_b": -s * r[0] + c * r[1], "m_b": float(m_b),
@@ -172,7 +178,7 @@ class SignalReader:
             piston, annulus = self.bore_areas[name]
             out[f"p_{name}"] = pf[name] / piston if pf[name] >= 0 else -pf[name] / annulus
         if two_routes:
-            out.update(self._route2(data, k, f21, f31, pf))
+            out.update(self._route2(data, k, f21, f31, actuator))
         return out
 
     def _connect_force(self, data: mujoco.MjData) -> np.ndarray:
@@ -181,7 +187,7 @@ class SignalReader:
         return np.array([data.efc_force[rows[0]], data.efc_force[rows[2]]]) if rows.size == 3 else np.zeros(2)
 
     def _route2(self, data: mujoco.MjData, k: dict[str, np.ndarray], f21: np.ndarray, f31: np.ndarray,
-                pf: dict[str, float]) -> dict[str, float]:
+                actuator: dict[str, float]) -> dict[str, float]:
         kb, kp = self._names.index("bucket"), len(self._names) - 1
         n = kp  # linkage bodies only; the payload is merged into the bucket
         mass, com, inertia = k["mass"][:n].copy(), k["com"][:n].copy(), k["inertia"][:n].copy()
@@ -203,7 +209,8 @@ class SignalReader:
         sol = self.system.solve(mass, com, inertia, acc, k["alpha"][:n], force, moment, pts[self._pin_sites],
                                 0.5 * (starts + ends), axes, self._gravity)
         r21, r31 = sol.pins["pin_21"], sol.pins["O"]
-        axial = {c_: pf[c_] + self._limit_force(data, c_) - self._armature_force(data, c_) for c_ in ("lift", "tilt")}
+        axial = {c_: actuator[c_] + self._limit_force(data, c_) - self._armature_force(data, c_)
+                 for c_ in ("lift", "tilt")}
         w = self.force_scale
         return {
             "F21_route2": float(np.hypot(*r21)), "F31_route2": float(np.hypot(*r31)),

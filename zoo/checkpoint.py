@@ -1,7 +1,9 @@
 """Checkpoint directories on disk: the JSON card, the sha256 of every file, and verification.
 
 A checkpoint is a directory holding ``card.json`` and the files the card lists under ``files`` (name →
-sha256). Nothing but JSON and safetensors is ever read; names must be plain file names inside the directory.
+sha256), and nothing else: a file the card does not list is covered by no hash, so loading refuses it rather than
+let a reader (e.g. of ``check.csv``) take unverified content for part of the checkpoint. Nothing but JSON and
+safetensors is ever read; names must be plain file names inside the directory.
 """
 
 from __future__ import annotations
@@ -73,7 +75,8 @@ def check_card(card: Any, where: str | Path = CARD_NAME) -> None:
 
 
 def verify_files(directory: str | Path, card: dict[str, Any]) -> None:
-    """Every listed file exists and has the card's sha256; raises :class:`CheckpointError` otherwise."""
+    """Every listed file exists and has the card's sha256, and the directory holds nothing else besides the card;
+    raises :class:`CheckpointError` otherwise."""
     directory = Path(directory)
     for name, expected in card["files"].items():
         path = directory / name
@@ -82,6 +85,10 @@ def verify_files(directory: str | Path, card: dict[str, Any]) -> None:
         if (actual := sha256_file(path)) != expected:
             raise CheckpointError(f"{path}: sha256 {actual} does not match the card's {expected}; the file is "
                                   "corrupted or was tampered with, refusing to load it")
+    unlisted = sorted(p.name for p in directory.iterdir() if p.name != CARD_NAME and p.name not in card["files"])
+    if unlisted:
+        raise CheckpointError(f"{directory}: {unlisted} not listed in the card, so no sha256 covers them; refusing "
+                              "to load the checkpoint (remove them, or save the checkpoint again to list them)")
 
 
 def write_card(directory: str | Path, card: dict[str, Any]) -> Path:

@@ -63,6 +63,8 @@ def save_scaling_model(model: DeltaModel, directory: str | Path, card_fields: Ma
     if check_rows is not None:
         check_rows.rename(columns=_check_header).to_csv(directory / CHECK_FILE, index=False, float_format="%.17g")
         files.append(CHECK_FILE)
+    else:  # a check set left by an earlier save would be unlisted: loading refuses unlisted files
+        (directory / CHECK_FILE).unlink(missing_ok=True)
     finish_checkpoint(directory, KIND, {"model": {"class": model.name, "config": model.get_config()},
                                         **dict(card_fields)}, files)
     _check_round_trip(model, directory)

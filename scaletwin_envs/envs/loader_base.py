@@ -121,6 +121,12 @@ class LoaderEnv(MujocoEnv):
         return sum(int(w[k].number) for k in (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL,
                                                mujoco.mjtWarning.mjWARN_BADQACC))
 
+    def actuator_force(self, which: str) -> float:
+        """The valve's force on ``"lift"`` or ``"tilt"`` (N) at the last physics step: the servo's output, which
+        at relief may alternate between its limits step by step (observations keep it, as the policies were trained
+        on it; the ``Pf_*`` signals report the piston force, see :mod:`scaletwin_envs.signals`)."""
+        return float(self.data.actuator_force[self.signal_reader.ids.actuators[which]])
+
     def cylinder_state(self, which: str) -> tuple[float, float]:
         """Extension from fully retracted (m) and speed (m/s) of ``"lift"`` or ``"tilt"``."""
         j = self._slide[which]

@@ -286,7 +286,7 @@ class WheelLoaderDigEnv(LoaderEnv):
             lift_v / lift.extend_speed, tilt_v / tilt.extend_speed, sig["travel_speed"] / self.speed_scale,
             (edge[0] - self.pile.x[0]) / L, edge[1] / L, depth / L,
             self.pile.surface(edge[0] + 0.25 * L) / L, self.pile.surface(edge[0] + 0.5 * L) / L, self.dig.fill(),
-            sig["Pf_lift"] / lift.max_extend_force, sig["Pf_tilt"] / tilt.max_extend_force,
+            self.actuator_force("lift") / lift.max_extend_force, self.actuator_force("tilt") / tilt.max_extend_force,
             math.hypot(sig["R_x"], sig["R_z"]) / self.loader.weight,
             self._t / (self.max_episode_time * self.loader.froude_time),
             self.dig.spilled_volume / self.dig.capacity, (float(self.data.qpos[0]) - self._start_x) / L,

@@ -64,21 +64,6 @@ def test_fee_reduces_to_rankine_passive_pressure() -> None:
     assert n_gamma[n_gamma > 0].min() == pytest.approx(kp / 2, rel=1e-4)  # failure wedges that exist
 
 
-def _dig_force(soil: str, depth: float) -> float:
-    spec = make_loader("er12")
-    pile = Pile(toe_x=-5.0, height=depth, repose=math.radians(35), length=10.0, width=1.5)
-    dig = DigModel(make_soil(soil), pile, 1.5, spec.heaped_capacity, spec.characteristic_length)
-    f = dig.resistance((0.0, 0.0), (-0.7, 0.66), (-0.7, 0.0), (0.5, 0.0))
-    assert f.resist > 0 and f.travel == (1.0, 0.0)  # resists forward travel
-    return math.hypot(f.resist, f.press)
-
-
-def test_soil_resistance_grows_with_depth_and_cohesion() -> None:
-    shallow, deep = _dig_force("gravel", 0.2), _dig_force("gravel", 0.4)
-    assert 2.0 < deep / shallow < 4.0  # between d (edge bearing, side adhesion) and d² (the wedge)
-    assert _dig_force("sandy_loam", 0.3) > _dig_force("sand", 0.3)  # cohesion adds resistance
-
-
 def test_no_resistance_outside_the_pile_or_at_rest() -> None:
     spec = make_loader("er12")
     pile = Pile(toe_x=5.0, height=1.0, repose=math.radians(35), length=5.0, width=1.5)

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import math
+
 import gymnasium as gym
+import mujoco
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env as gym_check_env
@@ -19,16 +22,34 @@ def test_both_env_checkers_pass(scale: str | float) -> None:
     sb3_check_env(env, warn=False)
 
 
-def test_make_registers_and_exposes_model_data() -> None:
-    env = gym.make("scaletwin_envs:WheelLoaderDig-v0", scale="mini", soil="sand")
-    u = env.unwrapped
-    for body in ("boom", "bell_crank", "link_b", "bucket", "payload"):
-        assert u.model.body(body).id >= 0
-    for site in ("pin_O", "pin_21"):
-        assert u.model.site(site).id >= 0
-    for joint in ("lift_cylinder", "tilt_cylinder"):
-        assert u.model.joint(joint).type == 2  # mjJNT_SLIDE
-    assert u.data.qpos.shape == (u.model.nq,)
+BODY_PARENTS = {"frame": "world", "boom": "frame", "bucket": "boom", "payload": "bucket", "bell_crank": "boom",
+                "link_b": "bell_crank", "lift_barrel": "frame", "lift_rod": "lift_barrel", "tilt_barrel": "frame",
+                "tilt_rod": "tilt_barrel"}
+SLIDES = {"drive", "lift_cylinder", "tilt_cylinder"}
+HINGES = {"boom_hinge", "bucket_hinge", "bell_crank_hinge", "link_b_hinge", "lift_barrel_hinge", "tilt_barrel_hinge"}
+
+
+@pytest.mark.parametrize("scale", ["mini", "wa475"])
+def test_make_registers_and_exposes_model_data(scale: str) -> None:
+    """The registered id builds the Z-bar loader: its bodies, joints and sites, each body with the spec's mass."""
+    env = gym.make("scaletwin_envs:WheelLoaderDig-v0", scale=scale, soil="sand")
+    u, spec = env.unwrapped, scaletwin_envs.make_loader(scale)
+    m = u.model
+    assert u.loader == spec and u.soil == scaletwin_envs.make_soil("sand")
+    parents = {m.body(i).name: m.body(int(m.body_parentid[i])).name for i in range(1, m.nbody)}
+    assert parents == BODY_PARENTS
+    joints = {m.joint(i).name: int(m.jnt_type[i]) for i in range(m.njnt)}
+    assert joints == {**{j: int(mujoco.mjtJoint.mjJNT_SLIDE) for j in SLIDES},
+                      **{j: int(mujoco.mjtJoint.mjJNT_HINGE) for j in HINGES}}
+    sites = {m.site(i).name for i in range(m.nsite)}
+    assert {"pin_O", "pin_21", "bucket_edge", "bucket_heel", "bucket_back_top"} <= sites
+    masses = spec.masses
+    expected = {"frame": masses.chassis, "boom": masses.boom, "bucket": masses.bucket, "bell_crank": masses.bell_crank,
+                "link_b": masses.link_b, "lift_barrel": spec.lift.barrel_mass, "lift_rod": spec.lift.rod_mass,
+                "tilt_barrel": spec.tilt.barrel_mass, "tilt_rod": spec.tilt.rod_mass}
+    assert {b: float(m.body(b).mass[0]) for b in expected} == pytest.approx(expected, rel=1e-12)
+    assert mujoco.mj_getTotalmass(m) == pytest.approx(spec.operating_mass, rel=1e-8)  # empty payload: ~1e-9 bucket
+    assert u.data.qpos.shape == (m.nq,) and m.nq == m.nv == len(SLIDES | HINGES)
     assert env.observation_space.shape == (len(OBS_NAMES),)
 
 
@@ -49,18 +70,45 @@ def test_same_seed_same_trajectory() -> None:
     assert not np.array_equal(a, c)
 
 
+def _reset_state(env: gym.Env, seed: int) -> dict[str, np.ndarray | float]:
+    """Start pose (boom, bucket hinge), full state, pile (toe relative to the edge, height, repose) and obs."""
+    obs, _ = env.reset(seed=seed)
+    u = env.unwrapped
+    m, d, pile = u.model, u.data, u.pile
+    edge_x = float(d.site("bucket_edge").xpos[0])
+    rising = int(np.argmax(pile.initial > 0))  # first cell on the slope: h = (x - toe) tan(repose)
+    return {"boom": float(d.qpos[m.joint("boom_hinge").qposadr[0]]),
+            "bucket": float(d.qpos[m.joint("bucket_hinge").qposadr[0]]),
+            "qpos": d.qpos.copy(), "qvel": d.qvel.copy(), "obs": obs, "pile_h": pile.initial.copy(),
+            "toe": (float(pile.x[0]) - edge_x) / u.length, "height": float(pile.initial.max()) / u.length,
+            "repose": math.atan2(float(pile.initial[rising]), float(pile.x[rising] - pile.x[0]))}
+
+
 def test_seeded_reset_randomises_pile_and_pose() -> None:
-    env = gym.make(scaletwin_envs.ENV_ID, scale="er12")
-    toes = set()
-    for seed in range(4):
-        env.reset(seed=seed)
-        toes.add(round(float(env.unwrapped.pile.x[0]), 6))
-    assert len(toes) == 4
+    """No noise: every seed starts from the nominal state. Noise: pose and pile move within the documented bounds
+    (boom +0..0.03 rad, bucket ±0.03 rad, toe ±0.05 L, height ±8 %, repose ±2°) and differ from seed to seed."""
     quiet = gym.make(scaletwin_envs.ENV_ID, scale="er12", reset_noise_scale=0.0)
-    quiet.reset(seed=1)
-    x1 = quiet.unwrapped.pile.x[0]
-    quiet.reset(seed=2)
-    assert quiet.unwrapped.pile.x[0] == x1
+    a, b = _reset_state(quiet, 1), _reset_state(quiet, 2)
+    for key in a:
+        np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+    assert a["boom"] == 0.0 and a["bucket"] == 0.0 and not a["qvel"].any()
+    assert a["toe"] == pytest.approx(0.5, abs=1e-9)  # pile_distance, boom lengths
+    assert a["height"] == pytest.approx(0.7, rel=1e-9)  # pile_height, boom lengths
+    assert a["repose"] == pytest.approx(scaletwin_envs.make_soil("gravel").repose_angle, abs=1e-9)
+
+    env = gym.make(scaletwin_envs.ENV_ID, scale="er12")
+    noisy = [_reset_state(env, seed) for seed in range(4)]
+    for s in noisy:
+        assert 0.0 <= s["boom"] <= 0.03 and -0.03 <= s["bucket"] <= 0.03
+        assert s["toe"] == pytest.approx(0.5, abs=0.05 + 1e-9)
+        assert s["height"] == pytest.approx(0.7, rel=0.08 + 1e-9)
+        assert s["repose"] == pytest.approx(a["repose"], abs=math.radians(2.0) + 1e-9)
+    for key in ("boom", "bucket", "toe", "height", "repose"):
+        values = [s[key] for s in noisy]
+        assert len(set(values)) == 4, key  # each seed draws its own
+        assert max(abs(v - a[key]) for v in values) > 0.1 * {"boom": 0.03, "bucket": 0.03, "toe": 0.05,
+                                                               "height": 0.056, "repose": math.radians(2)}[key], key
+    np.testing.assert_array_equal(_reset_state(env, 2)["qpos"], noisy[2]["qpos"])  # and the same seed repeats
 
 
 @pytest.mark.parametrize(
