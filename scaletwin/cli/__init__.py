@@ -1,15 +1,26 @@
 """The ``scaletwin`` command line. Each subcommand lives in its own module of this package, which defines
-``register(subparsers)``; modules are discovered, so adding a command means adding a module."""
+``register(subparsers)``; modules are discovered, so adding a command means adding a module.
+
+``register`` only declares arguments: a command module imports nothing heavier than the standard library at module
+level (numpy, torch, MuJoCo, pandas, rich... are imported inside its ``run``), so ``scaletwin --help`` and argument
+errors answer at once; tests/test_cli_behaviour.py checks it.
+
+Output piped into a reader that stops early (``scaletwin predict ... | head -3``) ends the command quietly with exit
+code :data:`BROKEN_PIPE_EXIT`, as the Python documentation recommends (`signal` module, "Note on SIGPIPE").
+"""
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import pkgutil
 import sys
 from collections.abc import Sequence
 
 HELPER_MODULES = {"common"}  # modules of this package that are not commands
+#: Exit code when stdout's reader went away before the command finished writing (the Python docs' choice).
+BROKEN_PIPE_EXIT = 1
 
 
 class CommandError(Exception):
@@ -27,15 +38,43 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
     try:
-        return int(args.func(args) or 0)
+        return _main(argv)
+    except BrokenPipeError:
+        _stdout_to_devnull()
+        return BROKEN_PIPE_EXIT
+
+
+def _main(argv: Sequence[str] | None) -> int:
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit:  # --help, --version, usage errors: flush here, where a closed pipe can still be handled
+        sys.stdout.flush()
+        raise
+    try:
+        code = int(args.func(args) or 0)
     except (CommandError, ValueError, FileNotFoundError) as exc:
+        code = 2
         print(f"scaletwin {args.command}: error: {exc}", file=sys.stderr)
-        return 2
     except KeyboardInterrupt:
+        code = 130
         print(f"scaletwin {args.command}: interrupted", file=sys.stderr)
-        return 130
+    sys.stdout.flush()  # a closed pipe raises here, not in the interpreter's shutdown
+    return code
+
+
+def _stdout_to_devnull() -> None:
+    """Point stdout's file descriptor at /dev/null, so that flushing what is still buffered (at exit) succeeds
+    instead of printing a second BrokenPipeError."""
+    try:
+        fd = sys.stdout.fileno()
+    except (AttributeError, OSError, ValueError):  # replaced by an in-memory stream: nothing to flush to a pipe
+        return
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, fd)
+    finally:
+        os.close(devnull)
 
 
 if __name__ == "__main__":

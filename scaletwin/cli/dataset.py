@@ -43,9 +43,10 @@ def run(args: argparse.Namespace) -> int:
     spec = SweepSpec(scales=tuple(args.scales), soils=tuple(args.soils), pile_distances=tuple(args.pile_distances),
                      pile_heights=tuple(args.pile_heights), seeds=seeds, policy=args.policy, law=args.law)
     result = run_sweep(spec, args.out, executor=args.workers or args.executor, progress=not args.no_progress)
+    recorded = result.ran - result.failed  # ``ran`` counts every episode attempted now, the failed ones too
     rate = result.ran / result.seconds if result.seconds > 0 else float("nan")
-    print(f"{result.out_dir}: {result.ran} recorded, {result.skipped} already present, {result.failed} failed "
-          f"({result.seconds:.1f} s, {rate:.2f} episodes/s)")
+    print(f"{result.out_dir}: {recorded} recorded, {result.skipped} already present, {result.failed} failed "
+          f"({result.seconds:.1f} s, {rate:.2f} episodes/s attempted)")
     failed = [e for e in result.manifest["episodes"].values() if e["status"] == "failed"]
     for e in failed[:5]:
         print(f"  failed {e['file']}: {e.get('error')}")

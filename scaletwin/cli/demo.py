@@ -1,4 +1,4 @@
-"""``scaletwin demo``: the main job on embedded defaults, in a few minutes on two CPU cores.
+"""``scaletwin demo``: the main job on embedded defaults, in about 1.5 min on two CPU cores.
 
 1. simulate a few ER12 and WA475 dig cycles (and static holds) with the scripted dig policy;
 2. choose the Eq. (10) groups (π1 = F21/F31) with the paper's correlation filter;
@@ -14,20 +14,39 @@ from __future__ import annotations
 import argparse
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
-from rich.console import Console
+if TYPE_CHECKING:
+    from rich.console import Console
 
-from scaling.data import DEMO, DataBundle, load_or_generate
-from scaling.pipeline import PipelineConfig, PipelineResult, ScalingPipeline, model_specs
+    from scaling.pipeline import PipelineResult
 
 DEFAULT_OUT = Path("scaletwin-demo")
-#: Demo models: the FFNN of a full fit (3×64) and the baseline.
-DEMO_MODELS = model_specs(["ffnn", "direct-pi"])
+#: Names of the demo models: the FFNN of a full fit (3×64) and the baseline.
+DEMO_MODEL_NAMES = ("ffnn", "direct-pi")
+
+
+def __getattr__(name: str) -> Any:
+    """``DEMO`` (the data set spec) and ``DEMO_MODELS`` (the model specs), imported on first use: ``scaletwin
+    --help`` must not import :mod:`scaling` (torch, MuJoCo). Assigning either attribute (tests) overrides it."""
+    if name == "DEMO":
+        from scaling.data import DEMO
+
+        return DEMO
+    if name == "DEMO_MODELS":
+        from scaling.pipeline import model_specs
+
+        return model_specs(list(DEMO_MODEL_NAMES))
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def _setting(name: str) -> Any:
+    """A module setting: the value assigned to the module, else its lazy default (:func:`__getattr__`)."""
+    return globals()[name] if name in globals() else __getattr__(name)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("demo", help="simulate, fit FFNN and direct-Pi, scale F21 to the miniature (a few minutes)")
+    p = sub.add_parser("demo", help="simulate, fit FFNN and direct-Pi, scale F21 to the miniature (about 1.5 min)")
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"output directory (default ./{DEFAULT_OUT})")
     p.add_argument("--workers", default="serial",
                    help="processes for the simulations: an integer, or 'serial' (default; the demo is small)")
@@ -39,19 +58,26 @@ def register(sub: argparse._SubParsersAction) -> None:
 def fit_demo(out: Path, console: Console, workers: str | int = "serial", seed: int = 0,
              rerun: bool = True, data_dir: Path | None = None) -> PipelineResult:
     """Simulate the demo data into ``data_dir`` (default ``out/data``) and fit the demo models into ``out``."""
+    from scaling.data import DataBundle, load_or_generate
+    from scaling.pipeline import PipelineConfig, ScalingPipeline
+
+    demo = _setting("DEMO")
     data_dir = data_dir or out / "data"
-    n_eps = len(DEMO.tasks())
+    n_eps = len(demo.tasks())
     console.print(f"[bold]1/3[/bold] Simulating {n_eps} episodes of the ER12 (3.3 t) and WA475 (26 t): "
-                  f"dig cycles in {', '.join(DEMO.soils)} soil, and static holds -> {data_dir}")
-    train = load_or_generate(data_dir, DEMO, executor=workers, progress=True)
+                  f"dig cycles in {', '.join(demo.soils)} soil, and static holds -> {data_dir}")
+    train = load_or_generate(data_dir, demo, executor=workers, progress=True)
     console.print(f"      {len(train)} rows of F21, F31, Pf_tilt, Pf_lift, x_b, y_b, m_b, a1, alpha1, V1, w1")
     console.print("[bold]2/3[/bold] Choosing the Eq. (10) groups (paper's RMS-Pearson filter) and fitting the FFNN δ1 "
                   "model and the direct-Pi baseline (δ1 ≡ 1)")
-    config = PipelineConfig(models=DEMO_MODELS, seed=seed)
+    config = PipelineConfig(models=_setting("DEMO_MODELS"), seed=seed)
     return ScalingPipeline(config).run(DataBundle(train), out, progress=True, rerun=rerun)
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+    from rich.console import Console
+
     from scaletwin.cli.fit import executor_arg
     from scaletwin.cli.validate_mini import mini_table
     from scaling.plots import plot_predicted_vs_actual

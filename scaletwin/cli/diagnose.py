@@ -9,9 +9,6 @@ from __future__ import annotations
 
 import argparse
 
-from rich.console import Console
-from rich.table import Table
-
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("diagnose", help="locate, name and model sim-vs-real discrepancies of a recording")
@@ -34,6 +31,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.table import Table
+
     from discrepancy import DiagnoseOptions, NullSpec, diagnose
     from discrepancy.report import to_json, write_json, write_markdown
 

@@ -9,24 +9,13 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import Any
-
-from rich.console import Console
-from rich.table import Table
+from typing import TYPE_CHECKING, Any
 
 from scaletwin.cli import CommandError
 from scaletwin.cli.common import scale_arg
-from scaletwin_envs.evaluation import (
-    DEFAULT_SCALES,
-    DEFAULT_SOILS,
-    evaluate_policies,
-    plot_kpis,
-    summarize,
-    summary_rows,
-    write_csv,
-    write_markdown,
-)
-from scaletwin_envs.policies import TUNED, RandomPolicy, ScriptedDigPolicy
+
+if TYPE_CHECKING:
+    from rich.console import Console
 
 DEFAULT_MODEL = "bucketfill-ppo"
 #: Compact headings for the terminal (the Markdown table spells them out).
@@ -40,9 +29,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="comma list: learned (the --model checkpoint), scripted, scripted-tuned, random, or any "
                         "zoo checkpoint name or path (default learned,scripted,random)")
     p.add_argument("--model", default=DEFAULT_MODEL, help=f"zoo checkpoint used as 'learned' (default {DEFAULT_MODEL})")
-    p.add_argument("--scales", default=",".join(map(str, DEFAULT_SCALES)),
+    p.add_argument("--scales",
                    help="comma list of presets and length ratios (default mini,er12,wa475,0.3,1.5)")
-    p.add_argument("--soils", default=",".join(DEFAULT_SOILS), help="comma list (default gravel,clay_loam)")
+    p.add_argument("--soils", help="comma list (default gravel,clay_loam)")
     p.add_argument("--episodes", type=int, default=5, help="seeded episodes per policy, scale and soil (default 5)")
     p.add_argument("--seed", type=int, default=0, help="first episode seed (default 0)")
     p.add_argument("--workers", default=None,
@@ -53,6 +42,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def resolve_policy(name: str, model: str) -> Any:
     """A policy object for a name on the command line (zoo names are loaded with their hashes verified)."""
+    from scaletwin_envs.policies import TUNED, RandomPolicy, ScriptedDigPolicy
+
     if name == "scripted":
         return ScriptedDigPolicy()
     if name == "scripted-tuned":
@@ -94,6 +85,10 @@ def _executor(workers: str | None) -> str | int | None:
 
 
 def print_table(summary: Any, console: Console) -> None:
+    from rich.table import Table
+
+    from scaletwin_envs.evaluation import summary_rows
+
     _, rows = summary_rows(summary)
     table = Table(title="Policy KPIs (deterministic, mean over episodes)")
     for i, h in enumerate(SHORT_HEADS):
@@ -104,11 +99,24 @@ def print_table(summary: Any, console: Console) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from rich.console import Console
+
+    from scaletwin_envs.evaluation import (
+        DEFAULT_SCALES,
+        DEFAULT_SOILS,
+        evaluate_policies,
+        plot_kpis,
+        summarize,
+        write_csv,
+        write_markdown,
+    )
+
     if args.episodes < 1:
         raise CommandError("--episodes must be >= 1")
     policies = {name: resolve_policy(name, args.model) for name in _split(args.policies)}
-    scales = [scale_arg(s) for s in _split(args.scales)]
-    episodes = evaluate_policies(policies, scales, _split(args.soils), args.episodes, args.seed,
+    scales = list(DEFAULT_SCALES) if args.scales is None else [scale_arg(s) for s in _split(args.scales)]
+    soils = list(DEFAULT_SOILS) if args.soils is None else _split(args.soils)
+    episodes = evaluate_policies(policies, scales, soils, args.episodes, args.seed,
                                  executor=_executor(args.workers))
     summary = summarize(episodes)
     console = Console() if sys.stdout.isatty() else Console(width=200)  # pipes and logs get the whole table

@@ -12,30 +12,32 @@ from __future__ import annotations
 import argparse
 from dataclasses import replace
 from pathlib import Path
-
-import pandas as pd
-from rich.console import Console
-from rich.table import Table
+from typing import TYPE_CHECKING
 
 from scaletwin.cli import CommandError
-from scaling.data import PRESETS, DataBundle, load_or_generate, load_recordings
-from scaling.pipeline import DEFAULT_MODELS, PipelineConfig, ScalingPipeline, model_specs
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 DEFAULT_OUT = Path("scaletwin-fit")
+#: ``scaling.data.PRESETS`` and ``scaling.pipeline.DEFAULT_MODELS`` by name, spelt out so that registering the
+#: command (``scaletwin --help``) imports neither (torch, MuJoCo); tests/test_cli_behaviour.py checks they agree.
+DATASET_PRESETS = ("demo", "held_out", "small", "standard", "tiny")
+MODEL_NAMES = ("ffnn", "ffnn-pose", "gru-eq10", "gru-eq23", "power-law", "direct-pi", "deep-ensemble")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("fit", help="fit δ1 scaling models on recordings; write models, metrics and provenance")
     p.add_argument("--data", type=Path, help="recordings folder, used as it is (default: simulate --dataset into "
                                              "OUT/data/train)")
-    p.add_argument("--dataset", default="standard", choices=sorted(PRESETS),
+    p.add_argument("--dataset", default="standard", choices=DATASET_PRESETS,
                    help="preset simulated when no --data is given (default standard: ER12 + WA475)")
     p.add_argument("--held-out", type=Path, help="recordings of machines never trained on "
                                                  "(default OUT/data/held_out, simulated: λ = 0.5 and 2.5)")
     p.add_argument("--no-held-out", action="store_true", help="skip the machines never trained on")
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"model directory (default ./{DEFAULT_OUT})")
-    p.add_argument("--models", default=",".join(s.name for s in DEFAULT_MODELS),
-                   help="comma list (default: all): " + ", ".join(s.name for s in DEFAULT_MODELS))
+    p.add_argument("--models", default=",".join(MODEL_NAMES),
+                   help="comma list (default: all): " + ", ".join(MODEL_NAMES))
     p.add_argument("--reference", default="static", choices=("static", "random"),
                    help="ER12 reference row: drawn among rows at rest (default) or among all rows")
     p.add_argument("--seed", type=int, default=0, help="seed of split, reference draw and fits (default 0)")
@@ -57,6 +59,8 @@ def executor_arg(workers: str | int | None) -> str | int | None:
 
 def _data(given: Path | None, default: Path, preset: str, workers: str | int | None) -> pd.DataFrame:
     """Recordings of ``given`` as they are, or of ``preset`` simulated into ``default`` (resumable)."""
+    from scaling.data import PRESETS, load_or_generate, load_recordings
+
     if given is None:
         return load_or_generate(default, PRESETS[preset], executor_arg(workers))
     if not given.exists():
@@ -65,6 +69,12 @@ def _data(given: Path | None, default: Path, preset: str, workers: str | int | N
 
 
 def run(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.table import Table
+
+    from scaling.data import DataBundle
+    from scaling.pipeline import PipelineConfig, ScalingPipeline, model_specs
+
     console = Console()
     out: Path = args.out
     names = [n.strip() for n in args.models.split(",") if n.strip()]

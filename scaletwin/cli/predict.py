@@ -8,6 +8,12 @@ row; of a longer recording, the row closest to the model's calibrated reference 
 without ``--source`` the model's own calibrated reference row is used. The output holds the target's
 ``machine``/``episode``/``t``/``time`` columns (if any) and ``F21 [N]``, ``F21_lower [N]``, ``F21_upper [N]``,
 ``delta1 [1]``, ``extrapolated``; it is printed as CSV when ``--out`` is not given.
+
+Every ``name [unit]`` header of both files is checked, whether or not the model uses the column: a quantity
+scaletwin knows (``F21``, ``x_b``, ``time``...) whose unit pint cannot parse or whose dimension is wrong (``F21
+[furlongs]``) is an error naming the file and the column; a column of another name whose unit pint cannot parse
+is reported as a warning (the model never reads it, and logs carry such columns, e.g. ``operator [initials]``).
+A file that cannot be read (truncated Parquet, binary CSV...) is an error naming the file.
 """
 
 from __future__ import annotations
@@ -15,8 +21,13 @@ from __future__ import annotations
 import argparse
 import sys
 import warnings
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 from scaletwin.cli import CommandError
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 KEEP = ("machine", "episode", "t", "time")
 
@@ -35,21 +46,71 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def run(args: argparse.Namespace) -> int:
-    import zoo
-    from zoo.serving import InputError, ScalingModel, read_table, write_table
+def unit_problems(headers: Sequence[object]) -> tuple[list[str], list[str]]:
+    """(errors, warnings) about the units of ``name [unit]`` headers; plain names (SI) are not checked.
+
+    An error: a quantity scaletwin knows (:func:`scaletwin_envs.recording.schema.known_units`) whose unit pint
+    cannot parse or whose dimension is not the quantity's. A warning: another name whose unit pint cannot parse.
+    """
+    import numpy as np
+
+    from scaletwin_envs.recording.importer import to_si
+    from scaletwin_envs.recording.schema import NON_QUANTITY, known_units
     from zoo.serving.inputs import split_header
 
+    known = known_units()
+    errors: list[str] = []
+    notes: list[str] = []
+    for header in headers:
+        name, unit = split_header(header)
+        si = known.get(name)
+        if unit is None or si == NON_QUANTITY:
+            continue
+        try:  # to itself for an unknown name: whether pint parses the unit at all
+            to_si(np.ones(1), unit, si if si is not None else unit)
+        except Exception as exc:  # pint raises many types for a bad unit (undefined, syntax, even assertions)
+            why = str(exc) or type(exc).__name__
+            if si is not None:
+                errors.append(f"column {str(header)!r}: unit {unit!r} is not a unit of {name} (SI {si!r}): {why}")
+            else:
+                notes.append(f"column {str(header)!r}: pint does not know the unit {unit!r} ({why}); "
+                             "the column is not a quantity scaletwin uses, and is ignored")
+    return errors, notes
+
+
+def read_input(path: str, role: str) -> pd.DataFrame:
+    """``path`` read with :func:`zoo.serving.read_table`, every failure and every unit error naming the file
+    (``role``: "target" or "source"); unit warnings are printed to stderr."""
+    from zoo.serving import InputError, read_table
+
+    try:
+        frame = read_table(path)
+    except (FileNotFoundError, InputError):  # their messages name the file
+        raise
+    except Exception as exc:  # pyarrow, pandas, codecs: whatever a damaged file raises
+        raise CommandError(f"{role} {path}: cannot read the file ({type(exc).__name__}: {exc})") from exc
+    errors, notes = unit_problems(list(frame.columns))
+    if errors:
+        raise CommandError(f"{role} {path}: " + "; ".join(errors))
+    for note in notes:
+        print(f"scaletwin predict: warning: {role} {path}: {note}", file=sys.stderr)
+    return frame
+
+
+def run(args: argparse.Namespace) -> int:
+    import zoo
+    from zoo.serving import InputError, ScalingModel, write_table
+    from zoo.serving.inputs import split_header
+
+    target = read_input(args.target, "target")
+    source = read_input(args.source, "source") if args.source else None
     try:
         model = zoo.load(args.model)
     except zoo.CheckpointError as exc:
         raise CommandError(str(exc)) from exc
     if not isinstance(model, ScalingModel):
         raise CommandError(f"{args.model} is a {type(model).__name__}, not a scaling model (scaletwin zoo list)")
-    target = read_table(args.target)
-    source = None
-    if args.source:
-        source = read_table(args.source)
+    if source is not None:
         if args.source_row is not None:
             if not 0 <= args.source_row < len(source):
                 raise CommandError(f"--source-row {args.source_row} is outside the {len(source)} source rows")

@@ -11,10 +11,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from rich.console import Console
-
-from scaletwin.cli.fit import executor_arg
-
 DEFAULT_OUT = Path("scaletwin-reproduce")
 
 
@@ -29,6 +25,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from rich.console import Console
+
+    from scaletwin.cli.fit import executor_arg
     from scaling.report import headline_rows
     from scaling.reproduce import QUICK, ReproduceConfig, reproduce
 

@@ -1,7 +1,8 @@
 """``scaletwin simulate``: one standard dig cycle at a chosen scale; prints KPIs and peak signals.
 
 ``--parquet FILE`` records the episode (:mod:`scaletwin_envs.recording`), ``--rrd FILE`` logs it for the rerun
-viewer (``scaletwin view FILE``); both are written atomically while the episode runs.
+viewer (``scaletwin view FILE``); both are written atomically while the episode runs. Under the table, a line says
+what ``success`` means and why this episode has it or not (:func:`success_line`).
 """
 
 from __future__ import annotations
@@ -9,16 +10,12 @@ from __future__ import annotations
 import argparse
 import contextlib
 from collections.abc import Callable, Iterator
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import gymnasium as gym
-from rich.console import Console
-from rich.table import Table
-
-import scaletwin_envs
 from scaletwin.cli.common import add_machine_args, write_json
-from scaletwin_envs.policies import ScriptedDigPolicy
-from scaletwin_envs.rollout import run_episode
+
+if TYPE_CHECKING:
+    import gymnasium as gym
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -65,7 +62,34 @@ def _recorders(args: argparse.Namespace, env: gym.Env, policy: Any) -> Iterator[
             recorder.recording().to_parquet(args.parquet)
 
 
+def success_line(kpis: dict[str, Any], success_fill: float, time_limit: float) -> str:
+    """``success`` explained: the criteria (the env's ``success_fill`` and time limit, in s) and which of them this
+    episode met or missed."""
+    if kpis["success"]:
+        verdict = f"success True: the cycle completed with fill factor {kpis['fill_factor']:.3g} >= {success_fill:g}"
+    else:
+        missed = []
+        if kpis["sim_error"]:
+            missed.append(f"the simulation failed ({kpis['sim_error']})")
+        elif kpis["cycle_time"] >= time_limit:
+            missed.append(f"the cycle did not complete within the time limit of {time_limit:.3g} s")
+        if kpis["fill_factor"] < success_fill:
+            missed.append(f"fill factor {kpis['fill_factor']:.3g} < {success_fill:g}")
+        verdict = "success False: " + " and ".join(missed or ["the cycle did not complete"])
+    return (f"{verdict}. A dig succeeds when its cycle completes (bucket lifted clear of the pile, machine pulled "
+            f"back) within the time limit ({time_limit:.3g} s here) with a fill factor (load / heaped bucket "
+            f"volume) of at least {success_fill:g}.")
+
+
 def run(args: argparse.Namespace) -> int:
+    import gymnasium as gym
+    from rich.console import Console
+    from rich.table import Table
+
+    import scaletwin_envs
+    from scaletwin_envs.policies import ScriptedDigPolicy
+    from scaletwin_envs.rollout import run_episode
+
     env = gym.make(scaletwin_envs.ENV_ID, scale=args.scale, law=args.law, soil=args.soil)
     policy = ScriptedDigPolicy()
     with _recorders(args, env, policy) as on_step:
@@ -84,6 +108,10 @@ def run(args: argparse.Namespace) -> int:
         unit = {"a1": "m/s^2", "alpha1": "rad/s^2"}.get(k, "N")
         table.add_row(f"peak {k}", f"{v:.4g} {unit}")
     console.print(table)
+    unwrapped = env.unwrapped
+    console.print(success_line(kpis, unwrapped.success_fill,
+                               unwrapped.max_episode_time * unwrapped.loader.froude_time), markup=False,
+                  highlight=False)
     if args.json:
         write_json(args.json, {"loader": loader.to_dict(), "soil": args.soil, "seed": args.seed, "kpis": kpis,
                                "peaks": peaks})

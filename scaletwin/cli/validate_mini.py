@@ -11,14 +11,15 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-
-import numpy as np
-from rich.console import Console
-from rich.table import Table
+from typing import TYPE_CHECKING
 
 from scaletwin.cli import CommandError
-from scaling.provenance import provenance, write_json
-from scaling.validation import DIRECT_PI, LOADS, MiniValidation, env_at_rest, static_rows, validate_mini
+
+if TYPE_CHECKING:
+    import numpy as np
+    from rich.table import Table
+
+    from scaling.validation import MiniValidation
 
 DEFAULT_RUN = Path("scaletwin-fit")
 
@@ -30,8 +31,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "settings if absent)")
     p.add_argument("--json", metavar="FILE", type=Path, help="write the loads and per-model errors as JSON")
     p.add_argument("--figure", metavar="PNG", type=Path, help="error-against-load figure (default RUN/mini.png)")
-    p.add_argument("--loads", default=",".join(f"{x:g}" for x in LOADS),
-                   help="comma list of loads in kg (default 0.5 to 4 in 8 steps)")
+    p.add_argument("--loads", help="comma list of loads in kg (default 0.5 to 4 in 8 steps: "
+                                    "scaling.validation.LOADS)")
     p.add_argument("--check-env", action="store_true",
                    help="also settle the simulator's MuJoCo model at each load and show its F21 (cross-check)")
     p.set_defaults(func=run)
@@ -39,6 +40,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def mini_table(mini: MiniValidation, title: str, env_f21: np.ndarray | None = None) -> Table:
     """A rich table: load, analytical F21, each model's signed error; the last row holds mean absolute errors."""
+    from rich.table import Table
+
     table = Table(title=title)
     table.add_column("load (kg)", justify="right")
     table.add_column("F21 (N)", justify="right")
@@ -57,6 +60,12 @@ def mini_table(mini: MiniValidation, title: str, env_f21: np.ndarray | None = No
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+    from rich.console import Console
+
+    from scaling.provenance import provenance, write_json
+    from scaling.validation import DIRECT_PI, LOADS, env_at_rest, static_rows, validate_mini
+
     console = Console()
     run_dir = args.run_dir or DEFAULT_RUN
     if args.run_dir is not None and not Path(args.run_dir).exists():
@@ -69,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
     from scaling.run_io import load_run
 
     try:
-        loads = tuple(float(x) for x in args.loads.split(",") if x.strip())
+        loads = LOADS if args.loads is None else tuple(float(x) for x in args.loads.split(",") if x.strip())
     except ValueError as exc:
         raise CommandError(f"--loads must be a comma list of numbers, got {args.loads!r}") from exc
     if not loads or min(loads) <= 0:

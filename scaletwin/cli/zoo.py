@@ -8,10 +8,6 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from rich.console import Console
-from rich.markup import escape
-from rich.table import Table
-
 from scaletwin.cli import CommandError
 
 
@@ -38,6 +34,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run_list(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.table import Table
+
     import zoo
     from zoo.registry import read_registry
 
@@ -53,6 +52,8 @@ def run_list(args: argparse.Namespace) -> int:
 
 def run_build(args: argparse.Namespace) -> int:
     import torch
+    from rich.console import Console
+    from rich.table import Table
 
     from zoo.build import BuildConfig, build_zoo
 
@@ -100,6 +101,10 @@ def scaling_rows(card: dict[str, Any]) -> list[tuple[str, str]]:
 
 
 def run_show(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.markup import escape
+    from rich.table import Table
+
     import zoo
 
     try:
