@@ -48,8 +48,11 @@ def to_si(values: np.ndarray, unit: str, si_unit: str) -> np.ndarray:
         ValueError: unknown unit, or a unit of another dimension than ``si_unit``.
     """
     ureg = unit_registry()
-    src, dst = _parse(unit), _parse(si_unit)
-    have, want = ureg.Quantity(1.0, src).dimensionality, ureg.Quantity(1.0, dst).dimensionality
+    try:
+        src, dst = _parse(unit), _parse(si_unit)
+        have, want = ureg.Quantity(1.0, src).dimensionality, ureg.Quantity(1.0, dst).dimensionality
+    except AssertionError as exc:  # pint's parser asserts on some malformed strings (e.g. "kN/")
+        raise ValueError(f"{unit!r} is not a unit expression pint can parse") from exc
     if have != want:
         raise ValueError(f"its dimension is {have}, not {want}")
     return np.asarray(ureg.Quantity(np.asarray(values, dtype=np.float64), src).to(dst).magnitude, dtype=np.float64)

@@ -121,3 +121,10 @@ def test_to_si_and_expected_headers():
     with pytest.raises(ValueError):
         to_si(np.array([1.0]), "kg", "N")
     assert "optional:" in expected_headers() and "q_<joint> [rad or m]" in expected_headers()
+
+
+@pytest.mark.parametrize("unit", ["kN/", "furlongs", "N*", ""])
+def test_malformed_units_are_value_errors(unit: str) -> None:
+    """pint asserts or fails on some malformed unit strings; the importer always answers with a ValueError."""
+    with pytest.raises(ValueError):
+        to_si(np.ones(2), unit, "N")
