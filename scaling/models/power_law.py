@@ -10,11 +10,19 @@ import torch
 from scaling.delta_dataset import DeltaDataset
 from scaling.models.base import Data, DeltaModel
 
+#: Features are clipped to [min − m·span, max + m·span] of the training features (m, dimensionless).
+EXTRAPOLATION_MARGIN = 0.5
+
 
 class PowerLaw(DeltaModel):
     """Log-linear least squares on the generalised log distortions g_n (≈ ln d_n).
 
     If π_1 = C·∏ π_n^{a_n} exactly, then δ1 = ∏ d_n^{a_n} and the fitted exponents are the a_n (b = 0).
+
+    Predictions clip every feature to its training range widened by half its span on each side
+    (:data:`EXTRAPOLATION_MARGIN`): a group that crosses zero (a cylinder force at the moment it changes sign) gives
+    g_n far beyond anything fitted, and a log-linear law extrapolated there returns δ1 off by e^10 and more, while
+    a modest step beyond the data (the law's purpose between machines) is kept.
 
     Args:
         ridge: L2 penalty on the exponents (0 = ordinary least squares); the intercept is not penalised.
@@ -31,6 +39,7 @@ class PowerLaw(DeltaModel):
         self.fit_intercept = fit_intercept
         self.coef_: np.ndarray | None = None
         self.intercept_: float = 0.0
+        self.x_range_: tuple[np.ndarray, np.ndarray] | None = None
 
     def get_config(self) -> dict[str, Any]:
         return {**super().get_config(), "ridge": self.ridge, "fit_intercept": self.fit_intercept}
@@ -47,10 +56,15 @@ class PowerLaw(DeltaModel):
             coef = np.linalg.lstsq(xc, yc, rcond=None)[0]
         self.coef_ = coef
         self.intercept_ = y_mean - float(x_mean @ coef)
+        lo, hi = x.min(axis=0), x.max(axis=0)
+        self.x_range_ = (lo - EXTRAPOLATION_MARGIN * (hi - lo), hi + EXTRAPOLATION_MARGIN * (hi - lo))
 
     def _predict_log(self, data: Data) -> np.ndarray:
         assert self.coef_ is not None
-        return self._x(data) @ self.coef_ + self.intercept_
+        x = self._x(data)
+        if self.x_range_ is not None:
+            x = np.clip(x, *self.x_range_)
+        return x @ self.coef_ + self.intercept_
 
     def exponents(self) -> dict[str, float]:
         """Fitted exponent a_n per input group expression (and ``"source:..."`` terms with include_source)."""
@@ -70,9 +84,15 @@ class PowerLaw(DeltaModel):
 
     def _state(self) -> dict[str, torch.Tensor]:
         assert self.coef_ is not None
-        return {"coef": torch.from_numpy(self.coef_.astype(np.float64)),
-                "intercept": torch.tensor([self.intercept_], dtype=torch.float64)}
+        state = {"coef": torch.from_numpy(self.coef_.astype(np.float64)),
+                 "intercept": torch.tensor([self.intercept_], dtype=torch.float64)}
+        if self.x_range_ is not None:
+            state["x_lo"], state["x_hi"] = (torch.from_numpy(v.astype(np.float64)) for v in self.x_range_)
+        return state
 
     def _load_state(self, state: dict[str, torch.Tensor]) -> None:
         self.coef_ = state["coef"].numpy().astype(float)
         self.intercept_ = float(state["intercept"][0])
+        # models saved before the range was stored predict unclipped, as they did
+        self.x_range_ = ((state["x_lo"].numpy().astype(float), state["x_hi"].numpy().astype(float))
+                         if "x_lo" in state else None)

@@ -1,4 +1,5 @@
-"""Each catalogue effect planted alone at a clear magnitude is named with the right target; a null names nothing.
+"""Each catalogue effect planted alone at a clear magnitude is named with the right target, and its fitted
+parameters recover the planted ones inside an informative interval; a null names nothing.
 
 The catalogue is restricted to the planted effect's family and close rivals (and the fast options of conftest)
 so the suite stays fast; ``test_full_catalogue`` (slow) runs the whole catalogue.
@@ -8,9 +9,10 @@ from __future__ import annotations
 
 import pytest
 
-from discrepancy import DiagnoseOptions, Effect, diagnose
+from discrepancy import DiagnoseOptions, Effect, Scales, diagnose
 from discrepancy.bench_cases import ooc_physics
-from discrepancy.effects import UNEXPLAINED
+from discrepancy.effects import UNEXPLAINED, pi_unit
+from discrepancy.fit import RESOLUTION
 from discrepancy.synth import record
 
 #: effect → (target, parameters in Π, catalogue the search may choose from)
@@ -45,7 +47,36 @@ def test_effect_is_named(name: str, scales, diagnosed) -> None:
     assert top.effect == name, [e.effect for e in d.effects]
     expected = None if effect.spec.target_kind in ("payload", "soil") else target
     assert top.target == expected
-    assert all(lo <= hi for lo, hi in top.interval.values())
+
+
+#: Largest relative error of a fitted parameter (the planted magnitudes are clear; observed: ≤ 1.4 %).
+RECOVERY = 0.05
+#: Widest admissible interval, relative to the estimate: coverage of the planted value would mean nothing if the
+#: interval spanned most of the catalogue's bounds.
+WIDEST = 0.3
+
+
+@pytest.mark.parametrize("name", list(CLEAR))
+def test_fitted_parameter_brackets_the_planted_one(name: str, scales: Scales, diagnosed) -> None:
+    """Every fitted parameter is within a few per cent of the planted one, and its reported interval contains the
+    planted value, holds the estimate strictly inside, is at least the documented resolution (± RESOLUTION of Π)
+    wide on each side and is not uninformatively wide; the reported group is the fitted value over its unit."""
+    target, pis, candidates = CLEAR[name]
+    effect = Effect.from_pi(name, target, pis, scales)
+    top = diagnosed([effect], candidates).effects[0]  # the diagnosis of test_effect_is_named (cached)
+    assert top.effect == name
+    assert set(top.parameters) == set(top.interval) == set(pis)
+    for param, planted in effect.params.items():
+        value, (lo, hi) = top.parameters[param], top.interval[param]
+        assert value == pytest.approx(planted, rel=RECOVERY), (param, value, planted)
+        assert lo <= planted <= hi, (param, planted, (lo, hi))
+        # not degenerate: the estimate strictly inside, each side at least the resolution (2 % of Π, or of log Π)
+        side = 0.95 * RESOLUTION * abs(value)
+        assert lo < value - side and value + side < hi, (param, value, (lo, hi))
+        assert hi - lo < WIDEST * abs(value), (param, value, (lo, hi))
+        unit = pi_unit(name, param, target, scales)
+        assert top.groups[f"pi_{param}"] == pytest.approx(value / unit, rel=1e-12)
+        assert top.groups[f"pi_{param}"] == pytest.approx(pis[param], rel=RECOVERY)
 
 
 def test_null_names_nothing(planted, twin) -> None:

@@ -32,6 +32,23 @@ def test_json_validates(diagnosis, tmp_path) -> None:
     validate(json.loads(path.read_text()))
 
 
+def test_json_values_are_the_planted_effect(diagnosis, scales) -> None:
+    """The document's parameter and its group bracket the planted bias (SI and Π) inside their intervals."""
+    target, pis, _ = CLEAR["sensor_bias"]
+    planted = Effect.from_pi("sensor_bias", target, pis, scales).params["bias"]
+    effect = to_json(diagnosis)["effects"][0]
+    assert (effect["effect"], effect["target"]) == ("sensor_bias", target)
+    params, interval = effect["parameters"], effect["interval"]
+    assert params["bias"] == pytest.approx(planted, rel=0.05)
+    assert params["pi_bias"] == pytest.approx(pis["bias"], rel=0.05)
+    for key, truth in (("bias", planted), ("pi_bias", pis["bias"])):
+        lo, hi = interval[key]
+        assert lo < params[key] < hi and lo <= truth <= hi, (key, params[key], truth, (lo, hi))
+    # the Π interval is the SI interval over the same unit
+    unit = params["bias"] / params["pi_bias"]
+    assert interval["pi_bias"] == pytest.approx([interval["bias"][0] / unit, interval["bias"][1] / unit])
+
+
 @pytest.mark.parametrize("breakage", ["missing", "extra", "type", "enum", "range"])
 def test_schema_rejects_bad_documents(diagnosis, breakage: str) -> None:
     doc = to_json(diagnosis)

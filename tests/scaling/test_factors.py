@@ -207,6 +207,17 @@ def test_log_distortion_is_ln_d_for_large_values_and_finite_at_zero() -> None:
     assert np.isfinite(mixed).all()
 
 
+def test_log_distortion_golden_values_near_zero() -> None:
+    """Where π is comparable to ε the feature is not ln d but the documented s·[asinh(π^s/2ε) − asinh(π^t/2ε)]:
+    ε = 0.1 × median |π| = 0.2, π^s = 1, π^t = 0.5 and 0 give asinh(2.5) − asinh(1.25) and asinh(2.5) (values from
+    the asinh table: asinh(2.5) = 1.6472311463710958, asinh(1.25) = 1.0475930126492587); a negative group gives the
+    same with its orientation. Shipped checkpoints store ε and rely on this exact form."""
+    tr = LogDistortion(rel_eps=0.1).fit(np.array([[1.0, -1.0], [2.0, -2.0], [3.0, -3.0]]))
+    np.testing.assert_allclose(tr.eps, [0.2, 0.2])
+    g = tr.transform(np.array([1.0, -1.0]), np.array([[0.5, -0.5], [0.0, 0.0]]))
+    np.testing.assert_allclose(g, [[0.599638133721837] * 2, [1.6472311463710958] * 2], rtol=1e-12)
+
+
 def test_log_distortion_edge_cases_and_serialisation() -> None:
     tr = LogDistortion(rel_eps=1e-2, include_source=True).fit(np.array([[0.0, 1.0], [0.0, np.inf], [0.0, 3.0]]))
     np.testing.assert_allclose(tr.eps, [1.0, 2e-2])  # all-zero group: ε = 1; inf ignored

@@ -80,9 +80,14 @@ def test_grid_search_runs_only_missing_configs(split: tuple[DeltaDataset, DeltaD
 
 
 def test_grid_search_through_local_processes(split: tuple[DeltaDataset, DeltaDataset]) -> None:
+    """Two worker processes give the serial search's table, value by value (seeded fits, one thread each)."""
     grid = {**TINY, "units": (4, 8, 16)}
-    results = GridSearch(grid=grid, base_config={"epochs": 5}, executor=2, progress=False).run(*split)
+    base = {"epochs": 5, "threads": 1}
+    results = GridSearch(grid=grid, base_config=base, executor=2, progress=False).run(*split)
+    serial = GridSearch(grid=grid, base_config=base, executor="serial", progress=False).run(*split)
     assert list(results["units"]) == [4, 8, 16] and np.isfinite(results["r2"]).all()
+    assert list(results.columns) == list(serial.columns)
+    pd.testing.assert_frame_equal(results.drop(columns="fit_s"), serial.drop(columns="fit_s"), check_exact=True)
 
 
 def test_figures_are_written(tmp_path: Path) -> None:

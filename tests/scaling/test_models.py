@@ -58,6 +58,29 @@ def test_power_law_recovers_exponents_exactly(split: tuple[DeltaDataset, DeltaDa
     assert "d[Pf_tilt/F31]^+0.5" in model.describe()
 
 
+def test_power_law_does_not_extrapolate_beyond_its_training_features(
+        split: tuple[DeltaDataset, DeltaDataset], tmp_path) -> None:
+    """Inside the training range widened by half its span the law is exact; a feature far outside (a group
+    crossing zero) is clipped to that edge, so the prediction equals the one at the edge instead of growing like
+    e^(a·g); the range is saved with the model."""
+    train, test = split
+    model = PowerLaw(rel_eps=1e-9).fit(train)
+    x = model.features(test)
+    lo, hi = model.features(train).min(axis=0), model.features(train).max(axis=0)
+    lo, hi = lo - 0.5 * (hi - lo), hi + 0.5 * (hi - lo)
+    inside = np.all((x >= lo) & (x <= hi), axis=1)
+    np.testing.assert_allclose(model.predict(x[inside]), true_delta(test, EXPONENTS)[inside], rtol=1e-6)
+    far = np.tile(x[:1], (2, 1))
+    far[0, 0], far[1, 0] = hi[0] + 50.0, hi[0]
+    assert model.predict(far[1:])[0] != model.predict(far[1:] - [[1.0, *np.zeros(far.shape[1] - 1)]])[0]
+    pred = model.predict(far)
+    assert pred[0] == pred[1] and np.isfinite(pred).all()
+    from scaling.models import load_model
+
+    again = load_model(model.save(tmp_path / "pl"))
+    np.testing.assert_array_equal(again.predict(far), pred)
+
+
 def test_unit_distortions_give_unit_delta_after_fitting(split: tuple[DeltaDataset, DeltaDataset]) -> None:
     train, _ = split
     rec = synthetic_recordings(episodes=(1, 0), steps=10, seed=3)
