@@ -160,10 +160,12 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
         fit_seconds[cand.name] = time.perf_counter() - start
         groups_of[cand.name], output_of[cand.name] = cand.groups, cand.output
 
+    judged = {m: by_machine[m][judged_rows(by_machine[m])].reset_index(drop=True)
+              for m in (*split.calibration, *split.test)}
+
     def pairs_for(name: str, target: str) -> tuple[DeltaDataset, pd.DataFrame]:
         src_machine = split.reference if name == "direct-Pi (ER12)" else source_of[target]
-        tgt = by_machine[target]
-        tgt = tgt[judged_rows(tgt)].reset_index(drop=True)
+        tgt = judged[target]
         return matched_pairs(by_machine[src_machine], tgt, output_of[name], groups_of[name]), tgt
 
     calibrators: dict[str, GroupConformal] = {}
@@ -199,8 +201,7 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
             bucket[0].append(np.full(len(err), machine_score[m]))
             bucket[1].append(scale)
             bucket[2].append(err > MISS)
-        tgt = by_machine[m]
-        tgt = tgt[judged_rows(tgt)].reset_index(drop=True)
+        tgt = judged[m]
         f21 = tgt["F21"].to_numpy(float)
         pred = tgt["tilt_ratio"].to_numpy(float) * np.abs(tgt["Pf_tilt"].to_numpy(float))
         err = _errors(pred, f21)
