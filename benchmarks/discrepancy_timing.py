@@ -20,8 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from discrepancy import DiagnoseOptions, Effect, Scales, TwinSpec, diagnose
-from discrepancy.episode import signal_spread
-from discrepancy.synth import record
+from discrepancy.bench.synth import record
+from discrepancy.data.episode import signal_spread
 from scaletwin_envs.specs import make_loader, make_soil
 
 STEPS = ("load", "replay", "null", "locate", "redundancy", "identify", "fit", "compare", "total")
@@ -51,7 +51,7 @@ WORST = ("60:7:32", "30:11:6", "30:11:16")
 
 def bench_case(key: str) -> tuple[str, str, object, object]:
     """A benchmark case (``CASES:SEED:INDEX``) as (scale, label, twin, (real, held out))."""
-    from discrepancy.bench_cases import make_cases
+    from discrepancy.bench.cases import make_cases
 
     n, seed, index = (int(x) for x in key.split(":"))
     case = make_cases(n, seed)[index]

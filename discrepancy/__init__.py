@@ -7,21 +7,21 @@ Quick use::
     d = diagnose("real.parquet", held_out=["real_2.parquet"])   # or an EpisodeData / Recording
     d.effects, d.located, d.comparison.after
 
-Modules (one job each): :mod:`~discrepancy.effects` (catalogue), :mod:`~discrepancy.plant` (planting effects),
-:mod:`~discrepancy.twin` (replaying commands), :mod:`~discrepancy.locate` (windows, p-values, BH),
-:mod:`~discrepancy.identify` (naming), :mod:`~discrepancy.fit` (parameters, intervals, before/after),
-:mod:`~discrepancy.report` (JSON, Markdown; :mod:`~discrepancy.rerun_out` for rerun), :mod:`~discrepancy.bench`
-(the proof). Helpers: episode (recording adapter), twin_env (the env with hooks), runner (parallel replays),
-context, noise, calibrate, redundancy, sensors, search, synth, bench_cases, scoring, schema, plots, pipeline.
+Layout (stages in pipeline order; data flows one way, each stage a sub-package):
+:mod:`~discrepancy.data` (recordings and field logs in), :mod:`~discrepancy.twin` (spec, hooked env, planting,
+replays), :mod:`~discrepancy.stats` (noise model, null, localisation, redundancy), :mod:`~discrepancy.search`
+(screening, naming, fit, budget), :mod:`~discrepancy.report` (JSON, Markdown, rerun). Shared by all:
+:mod:`~discrepancy.effects` (the catalogue) and :mod:`~discrepancy.context` (one episode against its twin);
+:mod:`~discrepancy.pipeline` runs the stages. :mod:`~discrepancy.bench` is the proof, apart from the tool.
 """
 
 from __future__ import annotations
 
+from discrepancy.data.episode import EpisodeData, RecordingError, from_recording, load_episode
 from discrepancy.effects import CATALOGUE, EFFECT_NAMES, UNEXPLAINED, Effect, EffectSpec, Scales
-from discrepancy.episode import EpisodeData, RecordingError, from_recording, load_episode
-from discrepancy.noise import NullSpec
 from discrepancy.pipeline import DiagnoseOptions, Diagnosis, ReportedEffect, diagnose
-from discrepancy.twin import TwinSpec
+from discrepancy.stats.noise import NullSpec
+from discrepancy.twin.spec import TwinSpec
 
 __all__ = [
     "CATALOGUE", "EFFECT_NAMES", "UNEXPLAINED", "DiagnoseOptions", "Diagnosis", "Effect", "EffectSpec",

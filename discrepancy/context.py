@@ -9,13 +9,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from discrepancy.budget import Budget
+from discrepancy.data.episode import COMPARED, EpisodeData, signal_spread
 from discrepancy.effects import Effect, Scales
-from discrepancy.episode import COMPARED, EpisodeData, signal_spread
-from discrepancy.locate import NullCalibration, Window, windows
-from discrepancy.noise import NoiseModel
-from discrepancy.runner import CachedReplays
-from discrepancy.twin import SimResult
+from discrepancy.search.budget import Budget
+from discrepancy.stats.locate import NullCalibration, Window, windows
+from discrepancy.stats.noise import NoiseModel
+from discrepancy.twin.runner import CachedReplays
+from discrepancy.twin.spec import SimResult
 
 HUBER = 3.0  # whitened residuals beyond this count linearly (robust to the twin's fragile moments)
 DIVERGED = 30.0  # whitened residual assigned to samples after a twin blow-up

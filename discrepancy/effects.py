@@ -2,7 +2,7 @@
 
 Each :class:`EffectSpec` says what the effect is (its physical law), what it acts on (``target_kind`` and the
 targets, named as in the MuJoCo model or the signal list), how it is planted in a twin (``plant``: a model edit,
-an actuator model, the payload, the soil or a sensor model; see :mod:`discrepancy.plant`), its parameters with SI
+an actuator model, the payload, the soil or a sensor model; see :mod:`discrepancy.twin.plant`), its parameters with SI
 units, where it shows (signals and dig phases), and the dimensionless group of each parameter, so that a fitted
 effect carries to a machine of another size (:class:`Scales` converts between SI and the group).
 

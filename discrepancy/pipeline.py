@@ -2,7 +2,7 @@
 
 load → replay the commands on the twin → null (noise model and calibration) → locate → linkage redundancy →
 identify → fit → compare on held-out cycles. See :class:`Diagnosis` for what comes back and
-:mod:`discrepancy.report` for the JSON, Markdown and rerun outputs.
+:mod:`discrepancy.report.document` for the JSON, Markdown and rerun outputs.
 """
 
 from __future__ import annotations
@@ -13,19 +13,19 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from discrepancy.budget import REPLAYS, SECONDS, Budget
-from discrepancy.calibrate import calibrate, use
 from discrepancy.context import Context
+from discrepancy.data.episode import EpisodeData, RecordingError, from_recording, load_episode
 from discrepancy.effects import UNEXPLAINED, Effect
-from discrepancy.episode import EpisodeData, RecordingError, from_recording, load_episode
-from discrepancy.fit import GN_ITERATIONS, Comparison, FitResult, compare, fit
-from discrepancy.identify import FINALISTS, MAX_EFFECTS, POLISH, Identification, IdentifyOptions, identify
-from discrepancy.locate import ALPHA, Located, LocateResult, locate
-from discrepancy.noise import NoiseModel, NullSpec
-from discrepancy.redundancy import Check, check_all, fault_admissible, sensor_suspects
-from discrepancy.runner import CachedReplays, Runner, make_runner
-from discrepancy.screen import REFINE
-from discrepancy.twin import SimResult, Simulator, TwinSpec, check_compatible
+from discrepancy.search.budget import REPLAYS, SECONDS, Budget
+from discrepancy.search.fit import GN_ITERATIONS, Comparison, FitResult, compare, fit
+from discrepancy.search.identify import FINALISTS, MAX_EFFECTS, POLISH, Identification, IdentifyOptions, identify
+from discrepancy.search.screen import REFINE
+from discrepancy.stats.locate import ALPHA, Located, LocateResult, locate
+from discrepancy.stats.noise import NoiseModel, NullSpec
+from discrepancy.stats.null import calibrate, use
+from discrepancy.stats.redundancy import Check, check_all, fault_admissible, sensor_suspects
+from discrepancy.twin.runner import CachedReplays, Runner, make_runner
+from discrepancy.twin.spec import SimResult, Simulator, TwinSpec, check_compatible
 from scaletwin_envs.recording import Recording
 
 Source = EpisodeData | Recording | str | Path

@@ -31,9 +31,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from discrepancy.bench import run_bench
+    from discrepancy.bench.run import run_bench
+    from discrepancy.bench.scoring import table
     from discrepancy.pipeline import DiagnoseOptions
-    from discrepancy.scoring import table
 
     if args.cases < 1:
         raise ValueError(f"--cases must be >= 1, got {args.cases}")

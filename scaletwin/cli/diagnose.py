@@ -23,10 +23,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the null runs and the bootstrap (default 0)")
     p.add_argument("--budget", type=int, default=None, metavar="REPLAYS",
                    help="twin replays after which the search stops (deterministic; "
-                        "default: discrepancy.budget.REPLAYS)")
+                        "default: discrepancy.search.budget.REPLAYS)")
     p.add_argument("--time-budget", type=float, default=None, metavar="SECONDS",
                    help="wall-clock seconds after which the search stops, a safety net reported in the output "
-                        "(default: discrepancy.budget.SECONDS)")
+                        "(default: discrepancy.search.budget.SECONDS)")
     p.set_defaults(func=run)
 
 
@@ -35,7 +35,7 @@ def run(args: argparse.Namespace) -> int:
     from rich.table import Table
 
     from discrepancy import DiagnoseOptions, NullSpec, diagnose
-    from discrepancy.report import to_json, write_json, write_markdown
+    from discrepancy.report.document import to_json, write_json, write_markdown
 
     limits = {k: v for k, v in (("budget", args.budget), ("time_budget", args.time_budget)) if v is not None}
     options = DiagnoseOptions(workers=args.workers, null=NullSpec(seed=args.seed), seed=args.seed, **limits)
@@ -58,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
             writer(d, path)
             console.print(f"{flag}: {path}")
     if args.rrd:
-        from discrepancy.rerun_out import write_rrd
+        from discrepancy.report.rerun_out import write_rrd
 
         write_rrd(d, args.rrd)
         console.print(f"rrd: {args.rrd}")

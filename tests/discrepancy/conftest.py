@@ -8,8 +8,8 @@ from collections.abc import Callable, Sequence
 import pytest
 
 from discrepancy import DiagnoseOptions, Diagnosis, Effect, NullSpec, Scales, TwinSpec, diagnose
-from discrepancy.episode import signal_spread
-from discrepancy.synth import Synthetic, record
+from discrepancy.bench.synth import Synthetic, record
+from discrepancy.data.episode import signal_spread
 from scaletwin_envs.specs import make_loader, make_soil
 
 #: Fewer null runs, two refined candidates, one Gauss–Newton step while naming and none in the final fit: the tests

@@ -8,10 +8,10 @@ import dataclasses
 import pytest
 
 from discrepancy import Effect, diagnose
-from discrepancy.budget import Budget
 from discrepancy.effects import UNEXPLAINED
-from discrepancy.report import markdown, to_json
-from discrepancy.schema import validate
+from discrepancy.report.document import markdown, to_json
+from discrepancy.report.schema import validate
+from discrepancy.search.budget import Budget
 
 from .conftest import FAST
 

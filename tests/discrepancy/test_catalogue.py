@@ -6,7 +6,7 @@ import pytest
 
 from discrepancy import CATALOGUE, EFFECT_NAMES, Effect, Scales
 from discrepancy.effects import JOINTS, pi_unit
-from discrepancy.plant import apply_sensors, plan
+from discrepancy.twin.plant import apply_sensors, plan
 from scaletwin_envs.specs import make_loader, make_soil
 
 BRIEF = ("coulomb_friction", "viscous_damping", "backlash", "actuator_delay", "hydraulic_compliance",

@@ -6,8 +6,8 @@ import json
 
 import pytest
 
-from discrepancy.episode import to_recording
-from discrepancy.schema import validate
+from discrepancy.data.episode import to_recording
+from discrepancy.report.schema import validate
 from scaletwin.cli import main
 
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from discrepancy import Effect
-from discrepancy.identify import CREDIBLE, Identification, Round, only_closest
+from discrepancy.search.identify import CREDIBLE, Identification, Round, only_closest
 
 
 def _identification(gains: list[float], accepted: int) -> Identification:

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from discrepancy import RecordingError, TwinSpec, diagnose, load_episode
-from discrepancy.episode import from_recording, to_recording
-from discrepancy.locate import benjamini_hochberg, windows
+from discrepancy.data.episode import from_recording, to_recording
+from discrepancy.stats.locate import benjamini_hochberg, windows
 from scaletwin_envs.specs import make_loader, make_soil
 
 

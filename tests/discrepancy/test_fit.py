@@ -1,8 +1,9 @@
 """The final fit on its own: Gauss–Newton started 25 % off a planted parameter brings it back.
 
 The fast diagnoses of ``test_identify`` run no Gauss–Newton step in the final fit (their parameters come from the
-scans), so a Gauss–Newton step that went the wrong way would pass them; here :func:`discrepancy.fit.fit` runs on a
-planted recording from a wrong start, with the pipeline's own context (replays, null model), in a few seconds.
+scans), so a Gauss–Newton step that went the wrong way would pass them; here
+:func:`discrepancy.search.fit.fit` runs on a planted recording from a wrong start, with the pipeline's own context
+(replays, null model), in a few seconds.
 """
 
 from __future__ import annotations
@@ -10,10 +11,10 @@ from __future__ import annotations
 import pytest
 
 from discrepancy import Effect, NullSpec, Scales, TwinSpec
-from discrepancy.calibrate import calibrate, use
 from discrepancy.context import Context
-from discrepancy.fit import fit
-from discrepancy.runner import CachedReplays, make_runner
+from discrepancy.search.fit import fit
+from discrepancy.stats.null import calibrate, use
+from discrepancy.twin.runner import CachedReplays, make_runner
 
 #: effect → (target, planted Π, start Π): a physical effect (payload mass, re-simulated) and a sensor model.
 CASES = {

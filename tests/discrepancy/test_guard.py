@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from discrepancy import Effect
-from discrepancy.redundancy import Check, Identity, _components, check, fault_admissible
+from discrepancy.stats.redundancy import Check, Identity, _components, check, fault_admissible
 
 
 def _signals(fz_gain: float = 1.0) -> dict[str, np.ndarray]:

@@ -10,10 +10,10 @@ from __future__ import annotations
 import pytest
 
 from discrepancy import DiagnoseOptions, Effect, Scales, diagnose
-from discrepancy.bench_cases import ooc_physics
+from discrepancy.bench.cases import ooc_physics
+from discrepancy.bench.synth import record
 from discrepancy.effects import UNEXPLAINED, pi_unit
-from discrepancy.fit import RESOLUTION
-from discrepancy.synth import record
+from discrepancy.search.fit import RESOLUTION
 
 #: effect → (target, parameters in Π, catalogue the search may choose from)
 CLEAR = {

@@ -7,9 +7,9 @@ import json
 import pytest
 
 from discrepancy import Effect
-from discrepancy.report import to_json, write_json, write_markdown
-from discrepancy.rerun_out import write_rrd
-from discrepancy.schema import SchemaError, report_schema, validate
+from discrepancy.report.document import to_json, write_json, write_markdown
+from discrepancy.report.rerun_out import write_rrd
+from discrepancy.report.schema import SchemaError, report_schema, validate
 
 from .test_identify import CLEAR
 

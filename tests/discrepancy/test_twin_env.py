@@ -6,7 +6,7 @@ import gymnasium as gym
 import numpy as np
 
 import scaletwin_envs
-from discrepancy.twin_env import PhysicsParams, Structure, TwinDigEnv
+from discrepancy.twin.env import PhysicsParams, Structure, TwinDigEnv
 from scaletwin_envs.policies import ScriptedDigPolicy
 from scaletwin_envs.rollout import run_episode
 

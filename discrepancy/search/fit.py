@@ -15,11 +15,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from discrepancy.candidates import Candidate
 from discrepancy.context import HUBER, Context
+from discrepancy.data.episode import EpisodeData
 from discrepancy.effects import Effect
-from discrepancy.episode import EpisodeData
-from discrepancy.runner import CachedReplays
+from discrepancy.search.candidates import Candidate
+from discrepancy.twin.runner import CachedReplays
 
 GN_ITERATIONS = 3
 BOOTSTRAP = 400

@@ -29,7 +29,7 @@ class SchemaError(ValueError):
 
 @lru_cache(maxsize=1)
 def report_schema() -> dict[str, Any]:
-    """The diagnosis report's schema (``discrepancy/schemas/report.schema.json``)."""
+    """The diagnosis report's schema (``discrepancy/report/schemas/report.schema.json``)."""
     return json.loads(SCHEMA_PATH.read_text())
 
 

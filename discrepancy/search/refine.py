@@ -17,9 +17,9 @@ from typing import Protocol
 
 import numpy as np
 
-from discrepancy.candidates import Candidate
 from discrepancy.context import huber
 from discrepancy.effects import Scales
+from discrepancy.search.candidates import Candidate
 
 ZOOM_ROUNDS = 3
 GN_ROUNDS = 3

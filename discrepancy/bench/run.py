@@ -1,7 +1,7 @@
 """The proof: plant physics in the twin, hide it, run the diagnosis blind and score it.
 
-Each case (:mod:`discrepancy.bench_cases`) records two closed-loop dig cycles of the planted twin (one analysed,
-one held out), diagnoses them against the nominal twin, and is scored (:mod:`discrepancy.scoring`) per planted
+Each case (:mod:`discrepancy.bench.cases`) records two closed-loop dig cycles of the planted twin (one analysed,
+one held out), diagnoses them against the nominal twin, and is scored (:mod:`discrepancy.bench.scoring`) per planted
 effect: identification, localisation, parameter error and interval coverage, residual reduction on the held-out
 cycle; false discoveries on null cases; ``unexplained`` on out-of-catalogue cases. Cases run in parallel through
 the executor seam (:func:`scaletwin_envs.parallel.make_executor`); every result is a JSON-able dict.
@@ -17,12 +17,12 @@ from typing import Any
 
 import numpy as np
 
-from discrepancy.bench_cases import Case, make_cases
+from discrepancy.bench.cases import Case, make_cases
+from discrepancy.bench.scoring import truth_pairs
+from discrepancy.bench.synth import Synthetic, record
+from discrepancy.data.episode import signal_spread
 from discrepancy.effects import UNEXPLAINED, Effect, Scales
-from discrepancy.episode import signal_spread
 from discrepancy.pipeline import DiagnoseOptions, Diagnosis, diagnose
-from discrepancy.scoring import truth_pairs
-from discrepancy.synth import Synthetic, record
 from scaletwin_envs.parallel import make_executor
 
 

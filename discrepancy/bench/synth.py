@@ -12,11 +12,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from discrepancy.data.episode import COMPARED, ROUTE2, EpisodeData, signal_spread
 from discrepancy.effects import Effect
-from discrepancy.episode import COMPARED, ROUTE2, EpisodeData, signal_spread
-from discrepancy.plant import apply_sensors, plan
-from discrepancy.twin import TwinSpec
-from discrepancy.twin_env import PhysicsParams, TwinDigEnv
+from discrepancy.twin.env import PhysicsParams, TwinDigEnv
+from discrepancy.twin.plant import apply_sensors, plan
+from discrepancy.twin.spec import TwinSpec
 from scaletwin_envs.policies import ScriptedDigPolicy
 
 

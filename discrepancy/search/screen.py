@@ -7,7 +7,7 @@ regressed jointly on the signature of the effects accepted so far and on the can
 amplitudes), so an accepted effect that absorbed part of the candidate's residual may shrink: the score is what
 is left. The best :data:`REFINE` candidates (and every dead time that takes away a good part of the kinematic
 residual) are then fitted by re-simulating the twin with them on top of the accepted effects
-(:mod:`discrepancy.search`).
+(:mod:`discrepancy.search.refine`).
 """
 
 from __future__ import annotations
@@ -17,10 +17,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from discrepancy.candidates import Candidate, physics_candidates
 from discrepancy.context import HUBER, Context, huber
 from discrepancy.effects import Effect
-from discrepancy.search import KINEMATIC, make_search, run_searches
+from discrepancy.search.candidates import Candidate, physics_candidates
+from discrepancy.search.refine import KINEMATIC, make_search, run_searches
 
 REFINE = 3  # candidates refined per round
 LAG_GAIN = 0.75  # a delay candidate is refined too when it removes a quarter of the kinematic residual

@@ -7,7 +7,7 @@ import numpy as np
 
 from discrepancy.context import Context, huber
 from discrepancy.effects import Effect
-from discrepancy.plant import shift
+from discrepancy.twin.plant import shift
 
 DELAY_STEPS = 20  # delays searched up to this many control steps
 DELAY_GRID = 81

@@ -16,7 +16,7 @@ from scaletwin_envs.signal_units import SIGNAL_UNITS
 
 
 def _traces(d: Diagnosis, stem: Path) -> Path:
-    from discrepancy.report import top_signals
+    from discrepancy.report.document import top_signals
 
     names = top_signals(d, 6)
     ep = d.held_out[0] if d.held_out else d.train

@@ -2,7 +2,7 @@
 soil, sensor model).
 
 :func:`plan` turns a list of :class:`~discrepancy.effects.Effect` into what the twin needs: a
-:class:`~discrepancy.twin_env.Structure` (built into the MuJoCo model), :class:`~discrepancy.twin_env.PhysicsParams`
+:class:`~discrepancy.twin.env.Structure` (built into the MuJoCo model), :class:`~discrepancy.twin.env.PhysicsParams`
 (set at run time) and the sensor effects, which :func:`apply_sensors` applies to recorded signals afterwards.
 The benchmark plants hidden physics this way, and the diagnosis uses the same code to model what it found.
 """
@@ -17,7 +17,7 @@ from typing import Protocol
 import numpy as np
 
 from discrepancy.effects import Effect
-from discrepancy.twin_env import PhysicsParams, Structure
+from discrepancy.twin.env import PhysicsParams, Structure
 from scaletwin_envs.specs.soil import SoilSpec
 
 

@@ -1,5 +1,5 @@
 """Outputs of a diagnosis: the JSON document (validated against ``schemas/report.schema.json``) and a Markdown
-report with plots. The rerun recording is in :mod:`discrepancy.rerun_out`.
+report with plots. The rerun recording is in :mod:`discrepancy.report.rerun_out`.
 
 JSON::
 
@@ -10,7 +10,7 @@ JSON::
 
 ``p_value`` is Benjamini–Hochberg adjusted; ``parameters``/``interval`` hold each SI parameter and its
 dimensionless group as ``pi_<parameter>``; ``fit`` is on held-out cycles when there were any; ``search`` is there
-only when the search budget (:mod:`discrepancy.budget`) cut the search short (``cut``: "replays" or "time").
+only when the search budget (:mod:`discrepancy.search.budget`) cut the search short (``cut``: "replays" or "time").
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ import numpy as np
 
 from discrepancy.effects import CATALOGUE
 from discrepancy.pipeline import Diagnosis, ReportedEffect
-from discrepancy.schema import validate
+from discrepancy.report.schema import validate
 
 MAX_LOCATED_ROWS = 40
 
@@ -136,7 +136,7 @@ def write_markdown(d: Diagnosis, path: str | Path, with_plots: bool = True) -> P
     path.parent.mkdir(parents=True, exist_ok=True)
     plots: list[str] = []
     if with_plots:
-        from discrepancy.plots import save_plots
+        from discrepancy.report.plots import save_plots
 
         plots = [p.name for p in save_plots(d, path.with_suffix(""))]
     path.write_text(markdown(d, plots))

@@ -16,9 +16,9 @@ from typing import Any
 
 import numpy as np
 
-from discrepancy.episode import COMPARED, ROUTE2, EpisodeData, RecordingError
-from discrepancy.plant import Plan, apply_sensors
-from discrepancy.twin_env import Structure, TwinDigEnv
+from discrepancy.data.episode import COMPARED, ROUTE2, EpisodeData, RecordingError
+from discrepancy.twin.env import Structure, TwinDigEnv
+from discrepancy.twin.plant import Plan, apply_sensors
 from scaletwin_envs.envs.wheel_loader_dig import WheelLoaderDigEnv
 from scaletwin_envs.specs import LoaderSpec, SoilSpec, make_loader, make_soil
 

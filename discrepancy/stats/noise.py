@@ -16,8 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from discrepancy.effects import JOINTS, Scales, pi_unit
-from discrepancy.plant import Plan
-from discrepancy.twin_env import PhysicsParams
+from discrepancy.twin.env import PhysicsParams
+from discrepancy.twin.plant import Plan
 
 MAD_TO_SD = 1.4826
 NOISE_FLOOR = 1e-4  # sensor noise is at least this fraction of the signal's spread

@@ -1,6 +1,6 @@
 """Physics candidates: a catalogue effect at one target, with its search space (u = log Π, or Π when signed),
 bounds and screening grid. Sensor faults are not among them (they are fitted in closed form,
-:mod:`discrepancy.sensors`)."""
+:mod:`discrepancy.search.sensors`)."""
 
 from __future__ import annotations
 

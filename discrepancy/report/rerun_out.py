@@ -8,7 +8,7 @@ from pathlib import Path
 import rerun as rr
 import rerun.blueprint as rrb
 
-from discrepancy.episode import EpisodeData
+from discrepancy.data.episode import EpisodeData
 from discrepancy.pipeline import Diagnosis
 
 APP_ID = "scaletwin_discrepancy"

@@ -15,9 +15,9 @@ import numpy as np
 
 from discrepancy.context import Context, huber
 from discrepancy.effects import Effect
-from discrepancy.locate import NullCalibration, window_stats
-from discrepancy.noise import NoiseModel, NullSpec, sensor_noise, twin_spread
-from discrepancy.plant import Plan, plan
+from discrepancy.stats.locate import NullCalibration, window_stats
+from discrepancy.stats.noise import NoiseModel, NullSpec, sensor_noise, twin_spread
+from discrepancy.twin.plant import Plan, plan
 
 PARAM_JITTER = 0.02  # relative perturbation of fitted parameters in the null runs around a corrected twin
 #: ... per effect where it should differ (none at present).

@@ -12,8 +12,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from discrepancy.effects import CATALOGUE, Effect, Scales
-from discrepancy.twin import TwinSpec
-from discrepancy.twin_env import PhysicsParams
+from discrepancy.twin.env import PhysicsParams
+from discrepancy.twin.spec import TwinSpec
 from scaletwin_envs.specs import make_loader, make_soil
 
 SCALES = ("mini", "er12", "wa475")

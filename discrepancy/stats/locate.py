@@ -1,7 +1,7 @@
 """Locate: per signal × dig phase × time window, where the residual exceeds what noise and the twin's own spread
 explain, with an effect size and a calibrated p-value controlled across all tests (Benjamini–Hochberg).
 
-Statistic of a window w of signal s: T = Σ z², z the residual whitened by :class:`~discrepancy.noise.NoiseModel`.
+Statistic of a window w of signal s: T = Σ z², z the residual whitened by :class:`~discrepancy.stats.noise.NoiseModel`.
 Its null distribution is learnt from the perturbed twin runs (each scored like a recording, with synthetic sensor
 noise and the spread of the other runs): per signal a scaled chi-square a·χ²(b·n) matched to the null moments,
 which gives continuous p-values far into the tail. Effect size: sqrt(max(T / E0[T] − 1, 0)), the RMS excess of

@@ -15,9 +15,9 @@ from typing import Any
 
 import numpy as np
 
-from discrepancy.locate import window_stats, windows
+from discrepancy.bench.synth import Synthetic
 from discrepancy.pipeline import Diagnosis
-from discrepancy.synth import Synthetic
+from discrepancy.stats.locate import window_stats, windows
 
 SHOWS, HIDDEN = 40.0, 10.0
 TARGETS = {"top1": 0.90, "f1": 0.85, "param_error": 0.15, "coverage": 0.80, "reduction": 0.70, "double": 0.75,

@@ -2,8 +2,8 @@
 
 Per round, on top of the effects accepted so far: every physics candidate is screened at its catalogue grid
 (finite differences of the twin with respect to the effect's parameter at several magnitudes) and the best few
-are refined (:mod:`discrepancy.search`); sensor faults are fitted in closed form on located channels that the
-linkage redundancy (:mod:`discrepancy.redundancy`) leaves open to a sensor. The candidate that lowers the robust
+are refined (:mod:`discrepancy.search.refine`); sensor faults are fitted in closed form on located channels that the
+linkage redundancy (:mod:`discrepancy.stats.redundancy`) leaves open to a sensor. The candidate that lowers the robust
 objective most wins the round if the gain is clearly above chance. After each round the corrected residual is
 located again: nothing left means explained. The catalogue does not explain the residual (``unexplained``) when
 the first winner removes less than 30 % of the excess, or when no further catalogue effect helps enough; a lone
@@ -19,15 +19,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from discrepancy.budget import REPLAYS, ROUND_RESERVE, SECONDS
-from discrepancy.calibrate import calibrate
 from discrepancy.context import DIVERGED, Context, huber
 from discrepancy.effects import Effect
-from discrepancy.fit import DENSE_FINE, DENSE_SCAN, polish, scan
-from discrepancy.locate import LocateResult, locate
-from discrepancy.noise import NullSpec
-from discrepancy.screen import REFINE, Trial, physics_trials
-from discrepancy.sensors import sensor_trials
+from discrepancy.search.budget import REPLAYS, ROUND_RESERVE, SECONDS
+from discrepancy.search.fit import DENSE_FINE, DENSE_SCAN, polish, scan
+from discrepancy.search.screen import REFINE, Trial, physics_trials
+from discrepancy.search.sensors import sensor_trials
+from discrepancy.stats.locate import LocateResult, locate
+from discrepancy.stats.noise import NullSpec
+from discrepancy.stats.null import calibrate
 
 Guard = Callable[[Effect], bool]  # may this sensor fault explain a channel an intact identity guards?
 FINALISTS = 2  # best trials scanned and polished (with the effects accepted so far) before the winner is chosen
@@ -54,7 +54,7 @@ class IdentifyOptions:
     None: all), the null spec of the re-calibration after each round, Gauss–Newton steps before judging, and
     how many close rivals are refitted before the winner of a round is chosen. The searches stop once ``budget``
     twin replays are spent or ``time_budget`` seconds have passed since the diagnosis started
-    (:mod:`discrepancy.budget`); what is left then is reported as ``unexplained``."""
+    (:mod:`discrepancy.search.budget`); what is left then is reported as ``unexplained``."""
 
     max_effects: int = MAX_EFFECTS
     refine: int = REFINE
@@ -146,7 +146,7 @@ def identify(ctx: Context, located: LocateResult, suspects: set[str], opts: Iden
              guard: Guard | None = None) -> Identification:
     """Select effects until the residual is explained (see module docstring). Sensor faults are tried on the
     located ``suspects``, and on other located channels where ``guard(fault)`` admits them (the redundancy's
-    :func:`~discrepancy.redundancy.fault_admissible`)."""
+    :func:`~discrepancy.stats.redundancy.fault_admissible`)."""
     opts = opts or IdentifyOptions()
     ctx.budget.replays, ctx.budget.seconds = opts.budget, opts.time_budget
     out = Identification()

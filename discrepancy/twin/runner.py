@@ -1,7 +1,7 @@
 """Running many twin replays: in this process (:class:`SerialRunner`) or in a persistent pool of worker processes
 (:class:`PoolRunner`), behind one ``run_many`` method, with results cached by planted effects.
 
-Workers are spawned once and keep their own :class:`~discrepancy.twin.Simulator` per twin, so a batch costs only
+Workers are spawned once and keep their own :class:`~discrepancy.twin.spec.Simulator` per twin, so a batch costs only
 the replays. Results come back in the order of the requests, so everything stays deterministic.
 """
 
@@ -17,8 +17,8 @@ from typing import Protocol
 import numpy as np
 
 from discrepancy.effects import Effect
-from discrepancy.plant import Plan, apply_sensors, plan
-from discrepancy.twin import SimResult, Simulator, TwinSpec
+from discrepancy.twin.plant import Plan, apply_sensors, plan
+from discrepancy.twin.spec import SimResult, Simulator, TwinSpec
 
 
 class Runner(Protocol):

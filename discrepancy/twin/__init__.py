@@ -1,0 +1,1 @@
+"""Twin stage: the twin's spec, the env with the catalogue's hooks, planting effects and (parallel, cached) replays."""
