@@ -1,8 +1,8 @@
 """Time one diagnosis per pipeline step: replay, null, locate, redundancy, identify, fit, compare.
 
-Diagnoses a few planted recordings (a null, one effect, two effects) at the three presets, plus the benchmark's
-costliest two-effect cases (``--bench-cases CASES:SEED:INDEX``, as ``scaletwin bench-discrepancy`` makes them;
-by default the three that needed the most replays before the search budget existed), with 2 worker processes
+Diagnoses a few planted recordings (a null, one effect, two effects) at the three presets, plus benchmark cases
+(``--bench-cases SEED:INDEX``, as ``scaletwin bench-discrepancy`` makes them, with their noise family and input
+condition; by default the first three two-effect cases of seed 0), with 2 worker processes
 (``--workers``), and writes a table of seconds per step, the replays, whether the search budget cut the search,
 and the 1-min load average when each diagnosis ended.
 
@@ -15,6 +15,7 @@ import argparse
 import datetime as dt
 import os
 import platform
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -45,34 +46,45 @@ def cases(scale: str) -> list[tuple[str, object, object]]:
     return out
 
 
-#: The costliest two-effect benchmark cases before the budget: (cases, seed, index) → 677, 673 and 562 replays.
-WORST = ("60:7:32", "30:11:6", "30:11:16")
+#: Two-effect benchmark cases (seed:index; indices 2, 9 and 14 are the first "double" slots of the kind pattern).
+#: The costliest cases of the old draw (before issue 14 widened it) no longer exist under the same keys.
+WORST = ("0:2", "0:9", "0:14")
 
 
-def bench_case(key: str) -> tuple[str, str, object, object]:
-    """A benchmark case (``CASES:SEED:INDEX``) as (scale, label, twin, (real, held out))."""
-    from discrepancy.bench.cases import make_cases
+def bench_case(key: str, folder: Path) -> tuple[str, str, object, object]:
+    """A benchmark case (``SEED:INDEX``; an old ``CASES:SEED:INDEX`` key is read as its last two fields) as (scale,
+    label, twin, (real, held out)), its recordings delivered under the case's input condition (field logs written
+    under ``folder``)."""
+    from discrepancy.bench.cases import make_case
+    from discrepancy.bench.sensor_noise import channel_range
+    from discrepancy.bench.synth import field_recording, simulate, twin_file
 
-    n, seed, index = (int(x) for x in key.split(":"))
-    case = make_cases(n, seed)[index]
-    nominal = record(case.twin, [], 0.0, case.twin.seed)
-    scales = Scales.of(case.twin.loader, case.twin.soil, signal_spread(nominal.clean.signals))
+    seed, index = (int(x) for x in key.split(":")[-2:])
+    case = make_case(index, seed)
+    nominal, control_dt = simulate(case.twin, [], case.twin.seed)
+    scales = Scales.of(case.twin.loader, case.twin.soil, signal_spread(nominal.signals))
+    ranges = {k: channel_range(v) for k, v in nominal.signals.items()}
     planted = case.effects(scales)
-    real = record(case.twin, planted, case.noise, case.twin.seed, case.extra(), name=f"case{index}")
-    held = record(case.twin, planted, case.noise, case.held_out_seed, case.extra(), name=f"case{index}_held_out")
-    label = f"bench seed {seed} #{index}: " + " + ".join(e.label() for e in planted)
-    return str(case.meta.get("scale")), label, case.twin, (real.noisy, held.noisy)
+    recs = []
+    for sub, (s, name) in enumerate(((case.twin.seed, f"case{index}"), (case.held_out_seed, f"case{index}_held_out"))):
+        clean, _ = simulate(case.twin, planted, s, case.extra(), name=name)
+        recs.append(field_recording(clean, control_dt, case.noise, case.condition, ranges, sub, folder / key))
+    twin = twin_file(case.twin, folder / key).as_posix() if case.condition.field_log else case.twin
+    label = (f"bench seed {seed} #{index} ({case.noise.describe()}, {case.condition.describe()}): "
+             + " + ".join(e.label() for e in planted))
+    return str(case.meta.get("scale")), label, twin, (recs[0].noisy, recs[1].noisy)
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--workers", type=int, nargs="+", default=[2])
     ap.add_argument("--scales", nargs="+", default=["mini", "er12", "wa475"])
-    ap.add_argument("--bench-cases", nargs="*", default=list(WORST), metavar="CASES:SEED:INDEX")
+    ap.add_argument("--bench-cases", nargs="*", default=list(WORST), metavar="SEED:INDEX")
     ap.add_argument("--out", default="benchmarks/results/discrepancy_timing.md")
     args = ap.parse_args()
     todo = [(scale, label, twin, eps) for scale in args.scales for label, twin, eps in cases(scale)]
-    todo += [bench_case(key) for key in args.bench_cases]
+    logs = Path(tempfile.mkdtemp(prefix="discrepancy_timing_"))
+    todo += [bench_case(key, logs) for key in args.bench_cases]
     rows = []
     started = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
     for scale, label, twin, (real, held) in todo:

@@ -263,25 +263,16 @@ def run(mutants: Sequence[Mutant], timeout: float, baseline: bool, log: bool = T
     return outcomes
 
 
-def _commit() -> str:
-    try:
-        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True,
-                              check=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain"], cwd=ROOT, capture_output=True, text=True,
-                               check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-    return head + (" with uncommitted changes" if dirty else "")
 
 
 def markdown(outcomes: Sequence[Outcome]) -> str:
-    from scaletwin_envs.host import host_line
+    from scaletwin_envs.host import git_revision, host_line
 
     killed = [o for o in outcomes if o.status == "killed"]
     survived = [o for o in outcomes if o.status == "survived"]
     other = [o for o in outcomes if o.status not in ("killed", "survived")]
     lines = ["# Mutation check (targeted mutants)", "",
-             f"{dt.datetime.now().isoformat(timespec='minutes')}, commit {_commit()}; {host_line()}.", "",
+             f"{dt.datetime.now().isoformat(timespec='minutes')}, commit {git_revision()}; {host_line()}.", "",
              "Produced by `benchmarks/mutants.py`: each mutant is applied alone to a copy of the repository and the "
              "listed default-run tests (`-m 'not slow'`) are run there with `pytest -x`; *killed*: a test failed.",
              "",

@@ -17,7 +17,8 @@ replays), :mod:`~discrepancy.stats` (noise model, null, localisation, redundancy
 
 from __future__ import annotations
 
-from discrepancy.data.episode import EpisodeData, RecordingError, from_recording, load_episode
+from discrepancy.data.channels import RecordingError
+from discrepancy.data.episode import EpisodeData, from_recording, load_episode
 from discrepancy.effects import CATALOGUE, EFFECT_NAMES, UNEXPLAINED, Effect, EffectSpec, Scales
 from discrepancy.pipeline import DiagnoseOptions, Diagnosis, ReportedEffect, diagnose
 from discrepancy.stats.noise import NullSpec

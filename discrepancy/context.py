@@ -9,7 +9,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from discrepancy.data.episode import COMPARED, EpisodeData, signal_spread
+from discrepancy.data.channels import COMPARED
+from discrepancy.data.episode import EpisodeData, signal_spread
 from discrepancy.effects import Effect, Scales
 from discrepancy.search.budget import Budget
 from discrepancy.stats.locate import NullCalibration, Window, windows

@@ -7,25 +7,30 @@ identify → fit → compare on held-out cycles. See :class:`Diagnosis` for what
 
 from __future__ import annotations
 
+import dataclasses
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from discrepancy.context import Context
-from discrepancy.data.episode import EpisodeData, RecordingError, from_recording, load_episode
+from discrepancy.data.channels import RecordingError
+from discrepancy.data.episode import EpisodeData, from_recording, read_log
 from discrepancy.effects import UNEXPLAINED, Effect
 from discrepancy.search.budget import REPLAYS, SECONDS, Budget
 from discrepancy.search.fit import GN_ITERATIONS, Comparison, FitResult, compare, fit
 from discrepancy.search.identify import FINALISTS, MAX_EFFECTS, POLISH, Identification, IdentifyOptions, identify
 from discrepancy.search.screen import REFINE
+from discrepancy.search.separate import Alternative, alternatives
 from discrepancy.stats.locate import ALPHA, Located, LocateResult, locate
 from discrepancy.stats.noise import NoiseModel, NullSpec
 from discrepancy.stats.null import calibrate, use
 from discrepancy.stats.redundancy import Check, check_all, fault_admissible, sensor_suspects
+from discrepancy.twin.align import Alignment, align
 from discrepancy.twin.runner import CachedReplays, Runner, make_runner
 from discrepancy.twin.spec import SimResult, Simulator, TwinSpec, check_compatible
+from scaletwin_envs.parallel import Executor
 from scaletwin_envs.recording import Recording
 
 Source = EpisodeData | Recording | str | Path
@@ -35,7 +40,8 @@ Source = EpisodeData | Recording | str | Path
 class DiagnoseOptions:
     """Knobs of a diagnosis (defaults are what the benchmark uses)."""
 
-    workers: int = 1
+    workers: int = 1  # local worker processes for the replays (1: in this process)
+    executor: str | Executor | None = None  # or replays through this executor ("ray", a RayExecutor, …)
     null: NullSpec = field(default_factory=NullSpec)
     max_effects: int = MAX_EFFECTS
     alpha: float = ALPHA
@@ -47,19 +53,29 @@ class DiagnoseOptions:
     finalists: int = FINALISTS  # rivals refitted before a round's winner is chosen
     budget: int = REPLAYS  # twin replays after which the searches stop (deterministic)
     time_budget: float = SECONDS  # seconds from the start after which the searches stop (safety net)
+    progress: Callable[[str], None] | None = None  # called with each step's name as it starts (load, replay, …)
 
 
 @dataclass
 class ReportedEffect:
-    """A named effect as reported: SI parameters and interval, dimensionless groups, confidence, confounding."""
+    """A named effect as reported: SI parameters and interval, dimensionless groups, confidence, confounding.
+
+    ``confidence``: a named effect's likelihood weight exp(−ΔJ/2) among all trials of its round (None on
+    ``unexplained``); ``explained_fraction``: the share of the excess residual (over the null) left before its round
+    that the effect removes (on ``unexplained``: that the closest candidate removes); ``alternatives``: effect labels
+    the recording cannot tell apart from this one.
+    """
 
     effect: str
     target: str | None
     parameters: dict[str, float]
     interval: dict[str, tuple[float, float]]
     groups: dict[str, float]
-    confidence: float
+    confidence: float | None
     confounded_with: list[str]
+    explained_fraction: float | None = None
+    alternatives: list[str] = field(default_factory=list)
+    separated_by: list[Alternative] = field(default_factory=list)  # evidence per alternative, same order
 
 
 @dataclass
@@ -82,6 +98,7 @@ class Diagnosis:
     simulations: int = 0
     noise: NoiseModel | None = None
     budget: Budget | None = None  # the search budget and whether it cut the search short
+    alignment: Alignment | None = None  # start, sensor filter and time offset estimated before comparing
 
     @property
     def named(self) -> list[str]:
@@ -89,12 +106,15 @@ class Diagnosis:
 
 
 class _Timer:
-    def __init__(self) -> None:
+    def __init__(self, progress: Callable[[str], None] | None = None) -> None:
         self.steps: dict[str, float] = {}
         self.start = time.perf_counter()
+        self.progress = progress
 
     @contextmanager
     def step(self, name: str) -> Iterator[None]:
+        if self.progress is not None:
+            self.progress(name)
         t0 = time.perf_counter()
         try:
             yield
@@ -102,18 +122,37 @@ class _Timer:
             self.steps[name] = self.steps.get(name, 0.0) + time.perf_counter() - t0
 
 
-def _episode(source: Source) -> EpisodeData:
+def _read(source: Source) -> tuple[str, EpisodeData | Recording]:
+    """A source as it is: an episode, or a recording not yet resampled (a file is read, nothing checked)."""
     if isinstance(source, EpisodeData):
-        return source
+        return source.name, source
     if isinstance(source, Recording):
-        return from_recording(source)
-    return load_episode(source)
+        return "recording", source
+    return Path(source).name, read_log(source)
 
 
-def _twin(twin: TwinSpec | str | None, ep: EpisodeData) -> TwinSpec:
+def _adapt(name: str, item: EpisodeData | Recording, control_dt: float | None) -> EpisodeData:
+    """An episode at the twin's control step (a faster log resampled, gaps bridged, see ``from_recording``)."""
+    return item if isinstance(item, EpisodeData) else from_recording(item, name, control_dt)
+
+
+def _provenance(name: str, item: EpisodeData | Recording, twin: TwinSpec | str | None) -> EpisodeData | None:
+    """The episode whose provenance describes the twin (None: a field log, which needs ``twin``)."""
+    try:
+        return _adapt(name, item, None)
+    except RecordingError:
+        if twin is None:
+            raise
+        return None
+
+
+def _twin(twin: TwinSpec | str | None, ep: EpisodeData | None) -> TwinSpec:
     if isinstance(twin, TwinSpec):
         return twin
-    return TwinSpec.parse(twin, ep) if twin else TwinSpec.from_episode(ep)
+    if twin:
+        return TwinSpec.parse(twin, ep)
+    assert ep is not None  # _provenance raised otherwise
+    return TwinSpec.from_episode(ep)
 
 
 def diagnose(real: Source | Sequence[Source], twin: TwinSpec | str | None = None,
@@ -134,24 +173,32 @@ def diagnose(real: Source | Sequence[Source], twin: TwinSpec | str | None = None
     opts = options or DiagnoseOptions()
     if opts.budget < 1 or not opts.time_budget > 0:
         raise ValueError(f"budget must be >= 1 replay and time_budget > 0 s, got {opts.budget}, {opts.time_budget}")
-    timer = _Timer()
+    timer = _Timer(opts.progress)
     with timer.step("load"):
         sources = list(real) if isinstance(real, list | tuple) else [real]
-        episodes = [_episode(s) for s in sources] + [_episode(s) for s in held_out]
-        train, held = episodes[0], episodes[1:]
-        spec = _twin(twin, train)
+        items = [_read(s) for s in [*sources, *held_out]]
+        spec = _twin(twin, _provenance(*items[0], twin))
         route2 = Simulator(spec, two_routes=True)
+        episodes = [_adapt(name, item, route2.control_dt) for name, item in items]
         for ep in episodes:
             check_compatible(ep, route2)
-    runner = make_runner(spec, opts.workers)
+        train, held = episodes[0], episodes[1:]
+    runner = make_runner(spec, opts.workers, opts.executor)
     try:
-        return _run(train, held, spec, route2, runner, opts, timer)
+        with timer.step("align"):
+            train, spec, alignment = align(train, spec, runner)
+            route2 = Simulator(spec, two_routes=True)
+            others = [align(ep, dataclasses.replace(spec, seed=ep.seed, start=()) if ep.seed is not None else spec,
+                            runner) for ep in held]
+        held_twins = [(ep, runner.with_twin(s)) for ep, s, _ in others]
+        return _run(train, held_twins, spec, route2, runner.with_twin(spec), opts, timer, alignment)
     finally:
         runner.close()
 
 
-def _run(train: EpisodeData, held: list[EpisodeData], spec: TwinSpec, route2: Simulator, runner: Runner,
-         opts: DiagnoseOptions, timer: _Timer) -> Diagnosis:
+def _run(train: EpisodeData, held_twins: list[tuple[EpisodeData, Runner]], spec: TwinSpec, route2: Simulator,
+         runner: Runner, opts: DiagnoseOptions, timer: _Timer, alignment: Alignment) -> Diagnosis:
+    held = [ep for ep, _ in held_twins]
     replays = CachedReplays(runner, train.commands, train.time)
     with timer.step("replay"):
         ctx = Context.build(train, replays)
@@ -180,11 +227,13 @@ def _run(train: EpisodeData, held: list[EpisodeData], spec: TwinSpec, route2: Si
     named = ident.effects
     with timer.step("fit"):  # after a cut by the clock, one Gauss–Newton step only
         iterations = min(opts.gn_iterations, 1) if ctx.budget.cut == "time" else opts.gn_iterations
+        if named:  # the noise of what is left once the named effects are modelled, not of the raw residual
+            use(ctx, calibrate(ctx, opts.null, named))
         result = fit(ctx, named, opts.seed, iterations) if named else None
         effects = result.effects if result else []
     with timer.step("compare"):
         eps = held or [train]
-        reps = [CachedReplays(runner, ep.commands, ep.time, ep.seed) for ep in held] or [replays]
+        reps = [CachedReplays(r, ep.commands, ep.time) for ep, r in held_twins] or [replays]
         comparison = compare(eps, reps, ctx.names, effects, held_out=bool(held))
         traces = {ep.name: {"twin": r.get([]), "corrected": r.get(effects)} for ep, r in zip(eps, reps, strict=True)}
         if held:
@@ -193,7 +242,7 @@ def _run(train: EpisodeData, held: list[EpisodeData], spec: TwinSpec, route2: Si
     timer.steps["total"] = sum(timer.steps.values())
     return Diagnosis(spec, ctx.names, found.located, reported, comparison, ident, result, checks, timer.steps, train,
                      held, traces, found, replays.runs + sum(r.runs for r in reps if r is not replays) + 1, ctx.noise,
-                     ctx.budget)
+                     ctx.budget, alignment)
 
 
 def _reported(ctx: Context, ident: Identification, result: FitResult | None, found: LocateResult
@@ -205,8 +254,12 @@ def _reported(ctx: Context, ident: Identification, result: FitResult | None, fou
         e: Effect = result.effects[k]
         groups = {f"pi_{n}": v for n, v in e.to_pi(ctx.scales).items()}
         target = e.target if e.spec.target_kind not in ("payload", "soil") else None
+        base = list(result.effects[:k])
+        rivals = [(t.effect, t.cost) for t in rnd.trials if t is not rnd.winner]
+        alts = alternatives(ctx, base, rnd.winner.effect, rnd.winner.cost, rivals)
         out.append(ReportedEffect(e.name, target, e.params, result.intervals[k], groups, rnd.confidence,
-                                  rnd.confounded))
+                                  rnd.confounded, explained_fraction=max(0.0, min(1.0, rnd.gain_fraction)),
+                                  alternatives=[a.label for a in alts], separated_by=alts))
     if ident.unexplained and ident.rounds:
         out.append(_unexplained(ident, found))
     return out
@@ -219,4 +272,4 @@ def _unexplained(ident: Identification, found: LocateResult) -> ReportedEffect:
     last = ident.rounds[len(ident.effects)] if len(ident.rounds) > len(ident.effects) else ident.rounds[-1]
     closest = [last.winner.effect.label(), *last.confounded]
     explained = max(0.0, min(1.0, last.gain_fraction))
-    return ReportedEffect(UNEXPLAINED, top, {}, {}, {}, float(1.0 - explained), closest[:5])
+    return ReportedEffect(UNEXPLAINED, top, {}, {}, {}, None, closest[:5], explained_fraction=float(explained))

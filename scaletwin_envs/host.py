@@ -1,4 +1,5 @@
-"""The machine a run or a benchmark ran on: processor, CPU model and widest SIMD set, core count, platform.
+"""The machine a run or a benchmark ran on: processor, CPU model and widest SIMD set, core count, platform;
+and the code version (git revision) it ran.
 
 The CPU matters for reproduction: float32 BLAS kernels differ between instruction sets, so a fit repeats bit for
 bit on the same kind of CPU and only to rounding (which long fits amplify) on another.
@@ -8,6 +9,7 @@ from __future__ import annotations
 
 import os
 import platform
+import subprocess
 from pathlib import Path
 from typing import Any
 
@@ -37,3 +39,17 @@ def host_line() -> str:
     """One line for result headers, e.g. ``x86_64 AMD EPYC (avx512f), 2 CPUs, Linux-...``."""
     h = host()
     return f"{h['processor']} {h['cpu_model']} ({h['simd']}), {h['cpus']} CPUs, {h['platform']}"
+
+
+def git_revision(root: str | Path | None = None) -> str:
+    """The commit checked out at ``root`` (default: this package's checkout), ``+dirty`` when tracked files have
+    changes, or ``unknown`` outside git (read-only git calls)."""
+    cwd = Path(root) if root is not None else Path(__file__).resolve().parents[1]
+    try:
+        rev = subprocess.run(["git", "rev-parse", "--short=12", "HEAD"], cwd=cwd, capture_output=True, text=True,
+                             timeout=10, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=cwd,
+                               capture_output=True, text=True, timeout=10, check=True).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    return rev + ("+dirty" if dirty else "")

@@ -24,7 +24,6 @@ import mujoco
 import numpy as np
 
 from scaletwin_envs.physics.newton_euler import LinkageSystem
-from scaletwin_envs.physics.planar import cross2
 from scaletwin_envs.physics.statics import CYLINDERS, LINKAGE_PINS
 
 LINKAGE_BODIES = ("boom", "bucket", "bell_crank", "link_b", "lift_barrel", "lift_rod", "tilt_barrel", "tilt_rod")
@@ -84,6 +83,7 @@ class SignalReader:
         self.force_scale = weight  # N: residuals are relative to the machine's weight
         self._cforce = np.zeros(6)
         self._names = (*LINKAGE_BODIES, "payload")
+        self._kb, self._kp = self._names.index("bucket"), len(self._names) - 1  # rows of the bucket and the payload
         self._bid = np.array([self.ids.bodies[n] for n in self._names])
         self._root = int(model.body_rootid[self.ids.bodies["bucket"]])
         self._sid = np.array([self.ids.sites[n] for n in PIN_SITES])
@@ -109,28 +109,36 @@ class SignalReader:
     def _tendon_loads(self, data: mujoco.MjData) -> list[tuple[np.ndarray, np.ndarray]]:
         """Passive tendon forces (damping) on the bucket, as (point, force) in x–z."""
         loads = []
+        xpos, m = data.site_xpos, self.model
         for t, a, b in self._bucket_tendons:
-            u = data.site_xpos[b] - data.site_xpos[a]
-            u = u / np.linalg.norm(u)
-            f = self.model.tendon_damping[t] * data.ten_velocity[t] - self.model.tendon_stiffness[t] * (
-                data.ten_length[t] - self.model.tendon_lengthspring[t, 0]) * 0.0
-            loads.append((_xz(data.site_xpos[a]), f * _xz(u)))
+            u = xpos[b] - xpos[a]
+            u = u / math.sqrt(u.dot(u))  # np.linalg.norm of a vector, without its call overhead
+            f = m.tendon_damping[t] * data.ten_velocity[t] - m.tendon_stiffness[t] * (
+                data.ten_length[t] - m.tendon_lengthspring[t, 0]) * 0.0
+            loads.append((_xz(xpos[a]), f * _xz(u)))
         return loads
 
     def _kinematics(self, data: mujoco.MjData) -> dict[str, np.ndarray]:
         """Planar COM position, velocity, kinematic acceleration, angular velocity/acceleration (CCW) per body."""
-        b = self._bid
-        r = data.xipos[b] - data.subtree_com[self._root]
-        w, v = data.cvel[b, :3], data.cvel[b, 3:]
-        dw, dv = data.cacc[b, :3], data.cacc[b, 3:]
-        vel = v + _cross(w, r)
-        acc = dv + _cross(dw, r) + _cross(w, vel) + self.model.opt.gravity  # proper → kinematic
-        rot_y = data.ximat[b].reshape(-1, 3, 3)[:, 1, :]
-        inertia = (rot_y**2 * self.model.body_inertia[b]).sum(axis=1)
+        # Each MjData/MjModel attribute access and fancy index costs about a microsecond: read each array once, and
+        # form only the x and z components of the acceleration (same operations, in the same order, as the full
+        # 3-vector expression acc = dv + dw × r + w × vel + g, so the values are bit for bit those of that form).
+        b, model = self._bid, self.model
+        xipos, cvel, cacc = data.xipos[b], data.cvel[b], data.cacc[b]
+        r = xipos - data.subtree_com[self._root]
+        w = cvel[:, :3]
+        vel = cvel[:, 3:] + _cross(w, r)
+        w0, w1, w2, dw0, dw1, dw2 = w[:, 0], w[:, 1], w[:, 2], cacc[:, 0], cacc[:, 1], cacc[:, 2]
+        r0, r1, r2, v0, v1, v2 = r[:, 0], r[:, 1], r[:, 2], vel[:, 0], vel[:, 1], vel[:, 2]
+        g = model.opt.gravity
+        acc = np.empty((len(b), 2))
+        acc[:, 0] = cacc[:, 3] + (dw1 * r2 - dw2 * r1) + (w1 * v2 - w2 * v1) + g[0]  # proper → kinematic
+        acc[:, 1] = cacc[:, 5] + (dw0 * r1 - dw1 * r0) + (w0 * v1 - w1 * v0) + g[2]
+        rot_y = data.ximat[b][:, 3:6]  # row y of each body's inertial frame
+        inertia = (rot_y**2 * model.body_inertia[b]).sum(axis=1)
         xfrc = data.xfrc_applied[b]
-        return {"com": data.xipos[b][:, [0, 2]], "vel": vel[:, [0, 2]], "acc": acc[:, [0, 2]], "omega": -w[:, 1],
-                "alpha": -dw[:, 1], "mass": self.model.body_mass[b].copy(), "inertia": inertia,
-                "force": xfrc[:, [0, 2]].copy(), "moment": -xfrc[:, 4].copy()}
+        return {"com": xipos[:, [0, 2]], "vel": vel[:, [0, 2]], "acc": acc, "omega": -w1, "alpha": -dw1,
+                "mass": model.body_mass[b], "inertia": inertia, "force": xfrc[:, [0, 2]], "moment": -xfrc[:, 4]}
 
     def _bucket_contacts(self, data: mujoco.MjData) -> list[tuple[np.ndarray, np.ndarray]]:
         loads = []
@@ -151,7 +159,7 @@ class SignalReader:
         Applied loads enter route 2 through ``data.xfrc_applied``, contacts through MuJoCo's contact list."""
         ids, m = self.ids, self.model
         k = self._kinematics(data)
-        kb, kp = self._names.index("bucket"), len(self._names) - 1
+        kb, kp = self._kb, self._kp
         mb, mp = k["mass"][kb], k["mass"][kp]
         m_b = mb + mp
         com = (mb * k["com"][kb] + mp * k["com"][kp]) / m_b
@@ -182,27 +190,39 @@ class SignalReader:
         return out
 
     def _connect_force(self, data: mujoco.MjData) -> np.ndarray:
-        eq = data.efc_type == mujoco.mjtConstraint.mjCNSTR_EQUALITY
-        rows = np.nonzero(eq & (data.efc_id == self.ids.eq_f21))[0]
-        return np.array([data.efc_force[rows[0]], data.efc_force[rows[2]]]) if rows.size == 3 else np.zeros(2)
+        ne = int(data.ne)  # MuJoCo orders constraint rows equality first: the first ne rows
+        rows = np.nonzero(data.efc_id[:ne] == self.ids.eq_f21)[0]
+        if rows.size != 3:
+            return np.zeros(2)
+        force = data.efc_force
+        return np.array([force[rows[0]], force[rows[2]]])
 
     def _route2(self, data: mujoco.MjData, k: dict[str, np.ndarray], f21: np.ndarray, f31: np.ndarray,
                 actuator: dict[str, float]) -> dict[str, float]:
-        kb, kp = self._names.index("bucket"), len(self._names) - 1
+        kb, kp = self._kb, self._kp
         n = kp  # linkage bodies only; the payload is merged into the bucket
         mass, com, inertia = k["mass"][:n].copy(), k["com"][:n].copy(), k["inertia"][:n].copy()
         acc, force, moment = k["acc"][:n].copy(), k["force"][:n].copy(), k["moment"][:n].copy()
-        # merge the payload rigidly into the bucket (parallel-axis theorem)
-        mb, mp = mass[kb], k["mass"][kp]
-        c = (mb * com[kb] + mp * k["com"][kp]) / (mb + mp)
-        inertia[kb] += mb * np.sum((com[kb] - c) ** 2) + k["inertia"][kp] + mp * np.sum((k["com"][kp] - c) ** 2)
-        acc[kb] = (mb * acc[kb] + mp * k["acc"][kp]) / (mb + mp)
-        moment[kb] += cross2(k["com"][kp] - c, k["force"][kp]) + k["moment"][kp] + cross2(com[kb] - c, force[kb])
-        force[kb] += k["force"][kp]
-        mass[kb], com[kb] = mb + mp, c
+        # Merge the payload rigidly into the bucket (parallel-axis theorem) and add the bucket's contact and tendon
+        # loads. Done on Python floats: the same operations, in the same order, as on the 2-vectors (so bit for bit
+        # the same values), at a fraction of the cost of numpy calls on arrays of two.
+        mb, mp = float(mass[kb]), float(k["mass"][kp])
+        (cbx, cbz), (cpx, cpz) = com[kb].tolist(), k["com"][kp].tolist()
+        (abx, abz), (apx, apz) = acc[kb].tolist(), k["acc"][kp].tolist()
+        (fbx, fbz), (fpx, fpz) = force[kb].tolist(), k["force"][kp].tolist()
+        total = mb + mp
+        cx, cz = (mb * cbx + mp * cpx) / total, (mb * cbz + mp * cpz) / total
+        dbx, dbz, dpx, dpz = cbx - cx, cbz - cz, cpx - cx, cpz - cz
+        inertia[kb] = float(inertia[kb]) + (
+            mb * (dbx * dbx + dbz * dbz) + float(k["inertia"][kp]) + mp * (dpx * dpx + dpz * dpz))
+        acc[kb] = ((mb * abx + mp * apx) / total, (mb * abz + mp * apz) / total)
+        turn = float(moment[kb]) + ((dpx * fpz - dpz * fpx) + float(k["moment"][kp]) + (dbx * fbz - dbz * fbx))
+        fx, fz = fbx + fpx, fbz + fpz
         for point, f in (*self._bucket_contacts(data), *self._tendon_loads(data)):
-            force[kb] += f
-            moment[kb] += cross2(point - c, f)
+            (px, pz), (lx, lz) = point.tolist(), f.tolist()
+            fx, fz = fx + lx, fz + lz
+            turn += (px - cx) * lz - (pz - cz) * lx
+        mass[kb], com[kb], force[kb], moment[kb] = total, (cx, cz), (fx, fz), turn
         pts = data.site_xpos[self._sid][:, [0, 2]]
         starts, ends = pts[self._cyl_sites[:, 0]], pts[self._cyl_sites[:, 1]]
         axes = (ends - starts) / np.linalg.norm(ends - starts, axis=1, keepdims=True)

@@ -35,6 +35,7 @@ from tqdm.auto import tqdm
 
 import scaletwin_envs
 from scaletwin_envs.parallel import Executor, make_executor
+from scaletwin_envs.recording.atomic import exists, is_uri, join, list_files, make_dirs, read_bytes, write_text_atomic
 from scaletwin_envs.recording.sweep import EpisodeTask, load_dataset, make_policy, run_task
 from scaletwin_envs.rollout import run_episode
 from scaletwin_envs.signal_units import SIGNAL_UNITS
@@ -158,37 +159,45 @@ def generate_frame(spec: DatasetSpec, executor: str | int | Executor | None = "s
 
 
 def generate_recordings(spec: DatasetSpec, out_dir: str | Path, executor: str | int | Executor | None = None,
-                        progress: bool = True) -> Path:
+                        progress: bool = True) -> Path | str:
     """Record every episode of ``spec`` not yet in ``out_dir`` (one Parquet file each) and write ``scaling.json``.
 
-    Returns ``out_dir``. Raises ``RuntimeError`` if an episode failed (its file is absent; a rerun retries it).
+    ``out_dir`` is a folder or a filesystem URI (``s3://bucket/prefix``; see :mod:`scaletwin_envs.recording.atomic`)
+    that the workers write to. Returns ``out_dir`` (a :class:`Path` for a folder). Raises ``RuntimeError`` if an
+    episode failed or its file is not in ``out_dir`` afterwards (written to another node's disk); a rerun retries it.
     """
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    out = str(out_dir) if is_uri(out_dir) else str(Path(out_dir).absolute())  # workers may run elsewhere
+    make_dirs(out)
     labelled = spec.tasks()
-    todo = [(task, str(out)) for _, _, task in labelled if not (out / task.filename).exists()]
-    failed: list[str] = []
+    present = set(list_files(out, "ep-", ".parquet"))
+    todo = [(task, out) for _, _, task in labelled if task.filename not in present]
+    errors: dict[str, str] = {}
     with tqdm(total=len(labelled), initial=len(labelled) - len(todo), desc="episodes", unit="ep",
               disable=not progress) as bar:
         for _, summary in make_executor(executor).map_unordered(run_task, todo):
             if summary["status"] != "done":
-                failed.append(f"{summary['file']}: {summary.get('error')}")
+                errors[summary["file"]] = str(summary.get("error"))
             bar.update()
+    present = set(list_files(out, "ep-", ".parquet"))
+    for task, _ in todo:
+        if task.filename not in present and task.filename not in errors:
+            errors[task.filename] = (f"reported written but not in {out} (a local path on another node? use a URI "
+                                     "every node can reach)")
+    failed = [f"{name}: {error}" for name, error in errors.items()]
     episodes = {task.key(): {"machine": label, "kind": kind, **task.params()} for label, kind, task in labelled}
     meta = {"format": FORMAT, "spec": spec.to_dict(), "episodes": episodes}
-    (out / SPEC_FILE).write_text(json.dumps(meta, indent=1, sort_keys=True, default=str))
+    write_text_atomic(join(out, SPEC_FILE), json.dumps(meta, indent=1, sort_keys=True, default=str))
     if failed:
         raise RuntimeError(f"{len(failed)} episodes failed: {failed[:3]}")
-    return out
+    return out if is_uri(out_dir) else Path(out_dir)
 
 
 def load_recordings(data_dir: str | Path) -> pd.DataFrame:
     """The prepared table of a folder written by :func:`generate_recordings` (or any sweep folder: episodes
     without an entry in ``scaling.json`` get ``kind="dig"`` and the machine name of their recording)."""
-    path = Path(data_dir)
-    raw = load_dataset(path)
-    meta_file = path / SPEC_FILE
-    episodes = json.loads(meta_file.read_text())["episodes"] if meta_file.exists() else {}
+    raw = load_dataset(data_dir)
+    meta_file = join(data_dir, SPEC_FILE)
+    episodes = json.loads(read_bytes(meta_file))["episodes"] if exists(meta_file) else {}
     labels = raw["episode"].map(lambda k: episodes.get(k, {}).get("machine"))
     frame = raw.rename(columns={"time": "t", "episode": "episode_key"}).assign(
         machine=labels.fillna(raw["machine"]).astype(str),

@@ -1,18 +1,26 @@
 """Synthetic "real" recordings: the twin with physics planted and hidden, driven in closed loop by the scripted
-dig policy, read through faulty sensors and white measurement noise.
+dig policy, read through faulty sensors and measurement noise.
 
-Used by the benchmark and the tests; the diagnosis only ever sees the returned :class:`EpisodeData` (commands,
-noisy signals, phases and the nominal twin's provenance), never the planted physics.
+:func:`simulate` gives the truth at the control step; :func:`record` adds white noise (the tests' recordings);
+:func:`field_recording` delivers a benchmark case's recording under its input condition
+(:mod:`discrepancy.bench.logs`) and noise family (:mod:`discrepancy.bench.sensor_noise`). The diagnosis only ever
+sees the returned :class:`EpisodeData` or log file (commands, noisy signals, and what the condition lets through of
+the provenance), never the planted physics.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from dataclasses import dataclass
+import inspect
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
-from discrepancy.data.episode import COMPARED, ROUTE2, EpisodeData, signal_spread
+from discrepancy.bench.logs import Condition, logged_channels, resample, write_csv, write_twin_json
+from discrepancy.bench.sensor_noise import NoiseSpec, apply_noise
+from discrepancy.data.channels import COMPARED, ROUTE2
+from discrepancy.data.episode import EpisodeData, load_episode, signal_spread
 from discrepancy.effects import Effect
 from discrepancy.twin.env import PhysicsParams, TwinDigEnv
 from discrepancy.twin.plant import apply_sensors, plan
@@ -27,18 +35,18 @@ class Synthetic:
     noisy: EpisodeData
     clean: EpisodeData
     noise_sd: dict[str, float]
+    control_dt: float = float("nan")
+    path: Path | None = None  # the field log the tool reads (None: ``noisy`` is handed over in memory)
+    meta: dict[str, object] = field(default_factory=dict)
 
 
-def record(twin: TwinSpec, effects: Sequence[Effect], noise: float, seed: int, extra: PhysicsParams | None = None,
-           name: str = "real") -> Synthetic:
-    """One closed-loop dig cycle of the twin with ``effects`` (and out-of-catalogue ``extra`` physics).
+def simulate(twin: TwinSpec, effects: Sequence[Effect], seed: int, extra: PhysicsParams | None = None,
+             name: str = "real") -> tuple[EpisodeData, float]:
+    """One closed-loop dig cycle of the twin with ``effects`` (and out-of-catalogue ``extra`` physics), noise-free.
 
-    Args:
-        twin: the nominal twin (its provenance is what the recording carries).
-        effects: planted catalogue effects.
-        noise: white noise standard deviation per signal, as a fraction of that signal's spread.
-        seed: reset seed of the episode and seed of the noise.
-        extra: run-time physics to start from (out-of-catalogue terms such as ``stiffness``/``edge_drag``).
+    Returns:
+        The truth at the control step (signals after planted sensor faults; provenance: the nominal twin and
+        ``seed``) and the control step, s.
     """
     p = plan(effects, twin.soil, extra)
     env = TwinDigEnv(structure=p.structure, scale=twin.loader, soil=twin.soil, two_route_check=True,
@@ -64,9 +72,93 @@ def record(twin: TwinSpec, effects: Sequence[Effect], noise: float, seed: int, e
     signals = apply_sensors({k: np.array([r[k] for r in rows]) for k in names}, time, p.sensors)
     clean = EpisodeData(time, np.asarray(commands), signals, np.asarray(phases, dtype=object), seed, twin.loader,
                         twin.soil, dict(twin.env_kwargs), name)
+    return clean, float(env.dt)
+
+
+def record(twin: TwinSpec, effects: Sequence[Effect], noise: float, seed: int, extra: PhysicsParams | None = None,
+           name: str = "real") -> Synthetic:
+    """One closed-loop dig cycle (:func:`simulate`) read with white noise.
+
+    Args:
+        twin: the nominal twin (its provenance is what the recording carries).
+        effects: planted catalogue effects.
+        noise: white noise standard deviation per signal, as a fraction of that signal's spread.
+        seed: reset seed of the episode and seed of the noise.
+        extra: run-time physics to start from (out-of-catalogue terms such as ``stiffness``/``edge_drag``).
+    """
+    clean, control_dt = simulate(twin, effects, seed, extra, name)
+    time, signals = clean.time, clean.signals
     rng = np.random.default_rng([seed, 104729])
     sd = {k: noise * v for k, v in signal_spread(signals).items()}
     noisy_signals = {k: v + sd[k] * rng.standard_normal(v.shape) for k, v in signals.items()}
     noisy = EpisodeData(time, clean.commands.copy(), noisy_signals, clean.phases.copy(), seed, twin.loader, twin.soil,
                         dict(twin.env_kwargs), name)
-    return Synthetic(noisy, clean, sd)
+    return Synthetic(noisy, clean, sd, control_dt)
+
+
+def field_recording(clean: EpisodeData, control_dt: float, noise: NoiseSpec, cond: Condition,
+                    ranges: Mapping[str, float], sub_seed: int, folder: Path | None = None) -> Synthetic:
+    """A case's recording as the tool receives it under ``cond``, read through the sensors of ``noise``.
+
+    Args:
+        clean: the truth at the control step (:func:`simulate`).
+        control_dt: the twin's control step, s.
+        noise: the case's sensor noise.
+        cond: the input condition; a field log is written to ``folder / f"{clean.name}.csv"``.
+        ranges: channel ranges (SI) the noise amplitudes are fractions of.
+        sub_seed: distinguishes the noise of the case's recordings.
+        folder: where field logs go (needed unless ``cond`` is ``native``).
+
+    Returns:
+        ``noisy`` is the in-memory recording (native) or what the tool's loader made of the log (field logs:
+        ``path`` set); ``noise_sd`` is the standard deviation per channel of the additive noise after averaging it
+        over each control step (what a perfect anti-aliasing filter leaves), used by the scoring only.
+
+    Raises:
+        RecordingError: the tool's loader refused the log (e.g. a rate it cannot resample yet).
+    """
+    log = resample(clean.time, clean.commands, clean.signals, cond, control_dt)
+    channels = logged_channels(log.truth, cond) if cond.field_log else list(log.truth)
+    noisy = apply_noise(noise, {k: log.truth[k] for k in channels}, log.h, control_dt, ranges, sub_seed)
+    sd = {k: _control_step_sd(log.time, v, control_dt) for k, v in noisy.noise.items()}
+    if not cond.field_log:
+        ep = EpisodeData(clean.time.copy(), clean.commands.copy(), noisy.measured, clean.phases.copy(), clean.seed,
+                         clean.machine, clean.soil, dict(clean.env_kwargs), clean.name)
+        return Synthetic(ep, clean, sd, control_dt)
+    if folder is None:
+        raise ValueError(f"condition {cond.name!r} writes a field log: give a folder")
+    path = write_csv(Path(folder) / f"{clean.name}.csv", log.time, log.commands, noisy.measured)
+    return Synthetic(_load(path, control_dt), clean, sd, control_dt, path, {"rows": len(log.time), "h": log.h})
+
+
+def twin_file(twin: TwinSpec, folder: Path) -> Path:
+    """The twin as a field user describes it (JSON without a seed)."""
+    return write_twin_json(Path(folder) / "twin.json", twin.loader.to_dict(), twin.soil.to_dict(),
+                           dict(twin.env_kwargs))
+
+
+def _load(path: Path, control_dt: float) -> EpisodeData:
+    """The tool's loader on a field log; the control step is passed where the loader takes it (field-log support)."""
+    if "control_dt" in inspect.signature(load_episode).parameters:
+        return load_episode(path, control_dt=control_dt)  # type: ignore[call-arg]
+    return load_episode(path)
+
+
+def _control_step_sd(time: np.ndarray, noise: np.ndarray, control_dt: float) -> float:
+    """Standard deviation of ``noise`` averaged over each control step (one value if sampled at that step)."""
+    bins = np.floor((np.asarray(time) - time[0]) / control_dt + 1e-6).astype(int)
+    counts = np.bincount(bins)
+    means = np.bincount(bins, weights=noise)[counts > 0] / counts[counts > 0]
+    return float(np.std(means))
+
+
+def aligned(clean: EpisodeData, time: np.ndarray) -> EpisodeData:
+    """The truth at the tool's sample times (linear interpolation; phases of the nearest control step). The same
+    object when the times agree (native rate)."""
+    time = np.asarray(time, float)
+    if len(time) == len(clean.time) and np.allclose(time, clean.time):
+        return clean
+    signals = {k: np.interp(time, clean.time, v, left=np.nan, right=np.nan) for k, v in clean.signals.items()}
+    idx = np.clip(np.searchsorted(clean.time, time), 0, len(clean.time) - 1)
+    return EpisodeData(time, clean.commands[idx], signals, clean.phases[idx], clean.seed, clean.machine, clean.soil,
+                       dict(clean.env_kwargs), clean.name)

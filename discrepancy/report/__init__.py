@@ -1,1 +1,2 @@
-"""Report stage: JSON (schema-validated), Markdown with plots, rerun recordings of real/twin/corrected."""
+"""Report stage: JSON (validated with ``jsonschema``), the plain-text summary, Markdown with plots, rerun
+recordings of real/twin/corrected."""

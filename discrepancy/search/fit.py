@@ -214,26 +214,115 @@ def _bootstrap(z: np.ndarray, jac: np.ndarray, w: np.ndarray, seed: int) -> tupl
     return np.quantile(d, q, axis=0), np.quantile(d, 1.0 - q, axis=0)
 
 
+#: An NRMSE is flagged ``"worse"`` when the correction raised it by more than this fraction of itself ...
+WORSE_RELATIVE = 0.05
+#: ... and by more than this (1 % of its normaliser): changes at the noise level are not flagged.
+WORSE_ABSOLUTE = 0.01
+#: A normaliser (the real signal's spread) below this fraction of the signal's scale is flagged
+#: ``"normaliser near zero"``: the NRMSE then divides by almost nothing and says little.
+NEAR_ZERO = 0.01
+WORSE = "worse"
+NORMALISER_NEAR_ZERO = "normaliser near zero"
+
+
+def entry_flags(before: float, after: float, normaliser: float | None = None, scale: float | None = None
+                ) -> list[str]:
+    """Flags of one before/after NRMSE pair: :data:`WORSE` when the correction raised it (beyond
+    :data:`WORSE_RELATIVE` and :data:`WORSE_ABSOLUTE`, or to a non-finite value), :data:`NORMALISER_NEAR_ZERO`
+    when ``normaliser`` is below :data:`NEAR_ZERO` × ``scale`` (not judged when either is unknown)."""
+    out = []
+    if (not np.isfinite(after) and np.isfinite(before)) or (
+            after > before * (1.0 + WORSE_RELATIVE) and after - before > WORSE_ABSOLUTE):
+        out.append(WORSE)
+    if normaliser is not None and scale is not None and (normaliser <= 1e-12 or normaliser < NEAR_ZERO * scale):
+        out.append(NORMALISER_NEAR_ZERO)
+    return out
+
+
 @dataclass
 class Comparison:
-    """NRMSE (RMS residual / spread of the real signal) per signal, overall and per phase, before and after."""
+    """NRMSE (RMS residual / spread of the real signal) per signal, overall and per phase, before and after the
+    correction, with what each NRMSE divides by, so that entries not to be trusted are flagged (:meth:`flags`).
+
+    ``normaliser``: signal → the spread its overall NRMSE divides by (SI); ``phase_normaliser``: signal → phase →
+    the spread within that phase; ``scale``: signal → its magnitude (the larger RMS of the real signal and of the
+    nominal twin, SI), against which a normaliser counts as near zero.
+    """
 
     before: dict[str, float] = field(default_factory=dict)
     after: dict[str, float] = field(default_factory=dict)
     by_phase: dict[str, dict[str, tuple[float, float]]] = field(default_factory=dict)
     held_out: bool = False
+    normaliser: dict[str, float] = field(default_factory=dict)
+    phase_normaliser: dict[str, dict[str, float]] = field(default_factory=dict)
+    scale: dict[str, float] = field(default_factory=dict)
+
+    def flags(self, signal: str, phase: str | None = None) -> list[str]:
+        """Flags of one entry, overall (``phase`` None) or in one phase: see :func:`entry_flags`."""
+        if phase is None:
+            before, after, norm = self.before[signal], self.after[signal], self.normaliser.get(signal)
+        else:
+            before, after = self.by_phase[signal][phase]
+            norm = self.phase_normaliser.get(signal, {}).get(phase)
+        return entry_flags(before, after, norm, self.scale.get(signal))
+
+    @property
+    def flagged(self) -> dict[str, list[str]]:
+        """Signal → flags of its overall entry, flagged signals only."""
+        return {s: f for s in self.before if s in self.after and (f := self.flags(s))}
+
+    @property
+    def phase_flagged(self) -> dict[str, dict[str, list[str]]]:
+        """Signal → phase → flags, flagged phases only."""
+        out: dict[str, dict[str, list[str]]] = {}
+        for s, phases in self.by_phase.items():
+            found = {p: f for p in phases if (f := self.flags(s, p))}
+            if found:
+                out[s] = found
+        return out
+
+    @property
+    def worse(self) -> list[str]:
+        """Signals whose overall NRMSE the correction made worse."""
+        return [s for s, f in self.flagged.items() if WORSE in f]
+
+    def residual(self, corrected: bool) -> float:
+        """Σ over signals of RMS residual / scale (the NRMSE where normaliser or scale is unknown): an overall
+        measure that a near-zero normaliser does not inflate. ``corrected``: after the correction, else before."""
+        values = self.after if corrected else self.before
+        total = 0.0
+        for s, v in values.items():
+            norm, scale = self.normaliser.get(s), self.scale.get(s)
+            total += v * norm / scale if norm is not None and scale else v
+        return float(total)
+
+    @property
+    def worse_overall(self) -> bool:
+        """The correction raised the overall residual (:meth:`residual`) by more than :data:`WORSE_RELATIVE`."""
+        before, after = self.residual(False), self.residual(True)
+        return not np.isfinite(after) or after > before * (1.0 + WORSE_RELATIVE)
 
 
-def _nrmse(real: np.ndarray, twin: np.ndarray) -> float:
-    spread = float(np.std(real)) or max(abs(float(np.mean(real))), 1e-12)
+def _spread(real: np.ndarray) -> float:
+    """What an NRMSE divides by: the real signal's standard deviation (its mean's size if it is constant)."""
+    return float(np.std(real)) or max(abs(float(np.mean(real))), 1e-12)
+
+
+def _nrmse(real: np.ndarray, twin: np.ndarray, spread: float) -> float:
     r = real - twin
     r = np.where(np.isfinite(r), r, spread * 10.0)
     return float(np.sqrt(np.mean(r**2)) / spread)
 
 
+def _rms(x: np.ndarray) -> float:
+    x = x[np.isfinite(x)]
+    return float(np.sqrt(np.mean(x**2))) if x.size else 0.0
+
+
 def compare(episodes: Sequence[EpisodeData], replays: Sequence[CachedReplays], names: Sequence[str],
             effects: Sequence[Effect], held_out: bool) -> Comparison:
-    """Residual of the nominal and of the corrected twin on ``episodes`` (pooled)."""
+    """Residual of the nominal and of the corrected twin on ``episodes`` (pooled), with the normalisers and
+    scales that :meth:`Comparison.flags` judges."""
     out = Comparison(held_out=held_out)
     real, nominal, corrected, phases = {}, {}, {}, []
     for ep, rep in zip(episodes, replays, strict=True):
@@ -246,7 +335,14 @@ def compare(episodes: Sequence[EpisodeData], replays: Sequence[CachedReplays], n
     labels = np.concatenate(phases)
     for s in names:
         r, n, c = (np.concatenate(d[s]) for d in (real, nominal, corrected))
-        out.before[s], out.after[s] = _nrmse(r, n), _nrmse(r, c)
-        out.by_phase[s] = {str(p): (_nrmse(r[labels == p], n[labels == p]), _nrmse(r[labels == p], c[labels == p]))
-                           for p in dict.fromkeys(labels) if np.sum(labels == p) > 1}
+        spread = _spread(r)
+        out.normaliser[s], out.scale[s] = spread, max(_rms(r), _rms(n))
+        out.before[s], out.after[s] = _nrmse(r, n, spread), _nrmse(r, c, spread)
+        out.by_phase[s], out.phase_normaliser[s] = {}, {}
+        for p in dict.fromkeys(labels):
+            m = labels == p
+            if np.sum(m) > 1:
+                sp = _spread(r[m])
+                out.phase_normaliser[s][str(p)] = sp
+                out.by_phase[s][str(p)] = (_nrmse(r[m], n[m], sp), _nrmse(r[m], c[m], sp))
     return out

@@ -27,7 +27,7 @@ from discrepancy.search.screen import REFINE, Trial, physics_trials
 from discrepancy.search.sensors import sensor_trials
 from discrepancy.stats.locate import LocateResult, locate
 from discrepancy.stats.noise import NullSpec
-from discrepancy.stats.null import calibrate
+from discrepancy.stats.null import NullModel, calibrate, use
 
 Guard = Callable[[Effect], bool]  # may this sensor fault explain a channel an intact identity guards?
 FINALISTS = 2  # best trials scanned and polished (with the effects accepted so far) before the winner is chosen
@@ -161,9 +161,9 @@ def identify(ctx: Context, located: LocateResult, suspects: set[str], opts: Iden
         if out.effects:  # a near miss of the accepted effects must not pass for a further effect
             refit, refit_cost = scan(ctx, out.effects, 0, (DENSE_SCAN, DENSE_FINE))
             if refit_cost < cost - MIN_GAIN:
-                after, judge = _judge(ctx, [], refit, opts.null)
-                out.effects, out.after, current, cost = refit, after, after, refit_cost
-                out.final_cost = cost
+                after, judge, model = _judge(ctx, [], refit, opts.null)
+                out.effects, out.after, current = refit, after, after
+                cost = out.final_cost = _adopt(ctx, model, refit)
                 if not after.located:
                     return out
                 tolerable = judge.removed >= EXPLAINED and (len(after.located) <= _tolerated(located)
@@ -174,13 +174,13 @@ def identify(ctx: Context, located: LocateResult, suspects: set[str], opts: Iden
         out.rounds.append(rnd)
         if cost - rnd.winner.cost < MIN_GAIN:
             break
-        trial, polished = rnd.model, rnd.winner.cost
-        after, judge = _judge(ctx, out.effects, trial, opts.null)
+        trial = rnd.model
+        after, judge, model = _judge(ctx, out.effects, trial, opts.null)
         rnd.gain_fraction = judge.gain
         if not _accepts(judge, bool(out.effects), len(current.located), len(after.located)):
             break
         out.effects, out.after = trial, after
-        cost = out.final_cost = polished
+        cost = out.final_cost = _adopt(ctx, model, trial)
         current = after
         if not after.located:
             return out
@@ -222,7 +222,7 @@ class _Judgement:
 
 
 def _judge(ctx: Context, base: list[Effect], trial: list[Effect], null: NullSpec | None
-           ) -> tuple[LocateResult, _Judgement]:
+           ) -> tuple[LocateResult, _Judgement, NullModel]:
     """Locate what is left after ``trial``, against the null of that corrected twin (its own noise and
     fragility), and measure the gains on that scale."""
     model = calibrate(ctx, null, trial)
@@ -236,7 +236,14 @@ def _judge(ctx: Context, base: list[Effect], trial: list[Effect], null: NullSpec
     left = locate(np.where(np.isfinite(z), z, DIVERGED), ctx.time, ctx.windows(), ctx.names, model.calibration)
     floor = min(model.cost, after)  # the null's objective, or the fit's if it goes below (then it explains all)
     return left, _Judgement((before - after) / max(before - floor, MIN_GAIN),
-                            (start - after) / max(start - floor, MIN_GAIN))
+                            (start - after) / max(start - floor, MIN_GAIN)), model
+
+
+def _adopt(ctx: Context, model: NullModel, effects: list[Effect]) -> float:
+    """Judge what follows against the noise left once ``effects`` are modelled (the raw residual's noise estimate
+    carries part of the discrepancy and would blur the next scans); the objective of ``effects`` under it."""
+    use(ctx, model)
+    return ctx.cost(ctx.simulate(effects))
 
 
 def _tolerated(located: LocateResult) -> int:

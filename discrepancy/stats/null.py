@@ -16,7 +16,7 @@ import numpy as np
 from discrepancy.context import Context, huber
 from discrepancy.effects import Effect
 from discrepancy.stats.locate import NullCalibration, window_stats
-from discrepancy.stats.noise import NoiseModel, NullSpec, sensor_noise, twin_spread
+from discrepancy.stats.noise import NoiseModel, NullSpec, sensor_noise
 from discrepancy.twin.plant import Plan, plan
 
 PARAM_JITTER = 0.02  # relative perturbation of fitted parameters in the null runs around a corrected twin
@@ -61,17 +61,17 @@ def calibrate(ctx: Context, spec: NullSpec | None = None, effects: Sequence[Effe
     dev = np.where(np.isfinite(dev), dev, 0.0)
     spread = np.array([ctx.scales.signal_scale[s] for s in ctx.names])
     residual = np.nan_to_num(ctx.real_matrix - center)
-    sensor = sensor_noise(residual, spread)
-    noise = NoiseModel(ctx.names, sensor, twin_spread(dev))
+    noise = NoiseModel.build(ctx.names, sensor_noise(residual, spread, np.nan_to_num(center)), dev)
     wins = ctx.windows()
     sizes = np.array([w.size for w in wins])
     rng = np.random.default_rng([spec.seed, 7919])
     null_stats, costs = [], []
     for k in range(len(runs)):
-        fake = dev[k] + sensor * rng.standard_normal(dev[k].shape)  # scored exactly like the recording
-        # with the spread of all runs (a run's own rare jump left out would look like a huge residual and make
-        # every window of that signal blind)
-        z = fake / NoiseModel(ctx.names, sensor_noise(fake, spread), noise.twin).total
+        sensed = noise.sample(rng)  # sensor noise as modelled
+        fake = dev[k] + sensed  # scored like the recording: a noise model re-estimated (from the noise: the
+        # twin's deviations would pass for coloured noise and make the null too narrow), with the spread of all
+        # runs (a run's own rare jump left out would look like a huge residual and make that signal blind)
+        z = NoiseModel.build(ctx.names, sensor_noise(sensed, spread, np.nan_to_num(center)), dev).whiten(fake)
         null_stats.append(window_stats(z, wins))
         costs.append(float(np.sum(huber(z))))
     return NullModel(noise, NullCalibration.fit(null_stats, sizes), float(np.mean(costs)),
@@ -84,7 +84,7 @@ def _channel_noise(ctx: Context, twin: dict[str, np.ndarray]) -> dict[str, float
     for name, values in ctx.real.signals.items():
         if name in twin and np.all(np.isfinite(twin[name])):
             r = (values - twin[name])[:, None]
-            out[name] = float(sensor_noise(r, np.array([max(float(np.std(values)), 1e-12)]))[0])
+            out[name] = sensor_noise(r, np.array([max(float(np.std(values)), 1e-12)]))[0].sd
     return out
 
 

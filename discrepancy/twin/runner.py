@@ -1,17 +1,15 @@
-"""Running many twin replays: in this process (:class:`SerialRunner`) or in a persistent pool of worker processes
-(:class:`PoolRunner`), behind one ``run_many`` method, with results cached by planted effects.
+"""Running many twin replays: in this process (:class:`SerialRunner`) or through the executor seam of
+:mod:`scaletwin_envs.parallel` (:class:`ExecutorRunner`: persistent local processes or Ray), behind one
+``run_many`` method, with results cached by planted effects.
 
-Workers are spawned once and keep their own :class:`~discrepancy.twin.spec.Simulator` per twin, so a batch costs only
-the replays. Results come back in the order of the requests, so everything stays deterministic.
+Workers keep their own :class:`~discrepancy.twin.spec.Simulator` per twin, so a batch costs only the replays.
+Results come back in the order of the requests, so everything stays deterministic.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import os
 from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor
-from multiprocessing import get_context
 from typing import Protocol
 
 import numpy as np
@@ -19,6 +17,9 @@ import numpy as np
 from discrepancy.effects import Effect
 from discrepancy.twin.plant import Plan, apply_sensors, plan
 from discrepancy.twin.spec import SimResult, Simulator, TwinSpec
+from scaletwin_envs.parallel import Executor, LocalProcessExecutor, make_executor, map_in_order
+
+Start = tuple[tuple[str, float], ...]  # reset options (name, value), see TwinSpec.start
 
 
 class Runner(Protocol):
@@ -26,7 +27,12 @@ class Runner(Protocol):
 
     twin: TwinSpec
 
-    def run_many(self, commands: np.ndarray, plans: Sequence[Plan], seed: int | None = None) -> list[SimResult]: ...
+    def run_many(self, commands: np.ndarray, plans: Sequence[Plan], seed: int | None = None,
+                 starts: Sequence[Start] | None = None) -> list[SimResult]: ...
+
+    def with_twin(self, twin: TwinSpec) -> Runner:
+        """This runner's workers replaying ``twin`` (shared; close only the original)."""
+        ...
 
     def close(self) -> None: ...
 
@@ -34,19 +40,25 @@ class Runner(Protocol):
 class SerialRunner:
     """Replays in this process."""
 
-    def __init__(self, twin: TwinSpec) -> None:
+    def __init__(self, twin: TwinSpec, sims: dict[str, Simulator] | None = None) -> None:
         self.twin = twin
-        self.sims = {twin.seed: Simulator(twin)}
+        self.sims = sims if sims is not None else {}  # by repr of the twin (its dict fields are not hashable)
 
-    @property
-    def sim(self) -> Simulator:
-        return self.sims[self.twin.seed]
+    def _sim(self, twin: TwinSpec) -> Simulator:
+        key = repr(twin)
+        if key not in self.sims:
+            self.sims[key] = Simulator(twin)
+        return self.sims[key]
 
-    def run_many(self, commands: np.ndarray, plans: Sequence[Plan], seed: int | None = None) -> list[SimResult]:
-        seed = self.twin.seed if seed is None else seed
-        if seed not in self.sims:
-            self.sims[seed] = Simulator(dataclasses.replace(self.twin, seed=seed))
-        return [self.sims[seed].run(commands, p) for p in plans]
+    def with_twin(self, twin: TwinSpec) -> SerialRunner:
+        return SerialRunner(twin, self.sims)
+
+    def run_many(self, commands: np.ndarray, plans: Sequence[Plan], seed: int | None = None,
+                 starts: Sequence[Start] | None = None) -> list[SimResult]:
+        """One replay per plan (and per start, when given: reset options overriding the twin's)."""
+        sim = self._sim(self.twin if seed is None else dataclasses.replace(self.twin, seed=seed))
+        starts = starts if starts is not None else [None] * len(plans)
+        return [sim.run(commands, p, start=st) for p, st in zip(plans, starts, strict=True)]
 
     def close(self) -> None:
         """Nothing to release."""
@@ -55,41 +67,48 @@ class SerialRunner:
 _WORKER_SIMS: dict[str, Simulator] = {}
 
 
-def _replay_task(task: tuple[TwinSpec, np.ndarray, Plan]) -> SimResult:
-    twin, commands, p = task
+def _replay_task(task: tuple[TwinSpec, np.ndarray, Plan, Start | None]) -> SimResult:
+    """One replay in a worker, on a :class:`Simulator` the worker keeps per twin (its envs are built once)."""
+    twin, commands, p, start = task
     key = repr(twin)
     if key not in _WORKER_SIMS:
         if len(_WORKER_SIMS) > 4:
             _WORKER_SIMS.clear()
         _WORKER_SIMS[key] = Simulator(twin)
-    return _WORKER_SIMS[key].run(commands, p)
+    return _WORKER_SIMS[key].run(commands, p, start=start)
 
 
-def _init_worker() -> None:
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
+class ExecutorRunner:
+    """Replays through the executor seam of :mod:`scaletwin_envs.parallel`: persistent local worker processes, or
+    Ray (workers keep their simulators between batches either way). Results come back in request order."""
 
+    def __init__(self, twin: TwinSpec, executor: Executor, owned: bool = True) -> None:
+        self.twin, self.executor, self.owned = twin, executor, owned
 
-class PoolRunner:
-    """Replays in ``workers`` spawned processes (kept alive until :meth:`close`)."""
-
-    def __init__(self, twin: TwinSpec, workers: int = 2) -> None:
-        if workers < 2:
-            raise ValueError(f"PoolRunner needs workers >= 2 (use SerialRunner), got {workers}")
-        self.twin = twin
-        self.pool = ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn"),
-                                        initializer=_init_worker)
-
-    def run_many(self, commands: np.ndarray, plans: Sequence[Plan], seed: int | None = None) -> list[SimResult]:
+    def run_many(self, commands: np.ndarray, plans: Sequence[Plan], seed: int | None = None,
+                 starts: Sequence[Start] | None = None) -> list[SimResult]:
         twin = self.twin if seed is None else dataclasses.replace(self.twin, seed=seed)
-        return list(self.pool.map(_replay_task, [(twin, commands, p) for p in plans]))
+        starts = starts if starts is not None else [None] * len(plans)
+        return map_in_order(_replay_task, [(twin, commands, p, st) for p, st in zip(plans, starts, strict=True)],
+                            self.executor)
+
+    def with_twin(self, twin: TwinSpec) -> ExecutorRunner:
+        return ExecutorRunner(twin, self.executor, owned=False)
 
     def close(self) -> None:
-        self.pool.shutdown(cancel_futures=True)
+        close = getattr(self.executor, "close", None)
+        if self.owned and close is not None:
+            close()
 
 
-def make_runner(twin: TwinSpec, workers: int = 1) -> Runner:
-    """A serial runner for ``workers`` ≤ 1, else a process pool."""
-    return SerialRunner(twin) if workers <= 1 else PoolRunner(twin, workers)
+def make_runner(twin: TwinSpec, workers: int = 1, executor: str | Executor | None = None) -> Runner:
+    """Serial for ``workers`` ≤ 1 and no ``executor``; else ``workers`` persistent local processes, or the given
+    executor (``"ray"``, a :class:`~scaletwin_envs.parallel.RayExecutor`, …)."""
+    if executor is not None and executor != "local":
+        return ExecutorRunner(twin, make_executor(executor))
+    if workers <= 1:
+        return SerialRunner(twin)
+    return ExecutorRunner(twin, LocalProcessExecutor(workers, persistent=True))
 
 
 class CachedReplays:

@@ -16,7 +16,9 @@ from typing import Any
 
 import numpy as np
 
-from discrepancy.data.episode import COMPARED, ROUTE2, EpisodeData, RecordingError
+from discrepancy.data.channels import COMPARED, ROUTE2, RecordingError
+from discrepancy.data.episode import EpisodeData
+from discrepancy.data.fieldlog import first_order_filter
 from discrepancy.twin.env import Structure, TwinDigEnv
 from discrepancy.twin.plant import Plan, apply_sensors
 from scaletwin_envs.envs.wheel_loader_dig import WheelLoaderDigEnv
@@ -29,12 +31,20 @@ DT_TOLERANCE = 0.02  # relative mismatch of the recording's sampling step and th
 
 @dataclass(frozen=True)
 class TwinSpec:
-    """The nominal twin: machine, soil, env arguments (JSON values) and the reset seed."""
+    """The nominal twin: machine, soil, env arguments (JSON values), the reset seed, and what a field log needs
+    instead of a seed.
+
+    ``start``: reset options (``WheelLoaderDigEnv.RESET_OPTIONS``: start pose and pile) estimated from a log that
+    has no seed; given values replace what the seed would draw. ``sensor_tau``: time constant (s) of a first-order
+    sensor filter the log's channels went through, applied to every twin signal (0: none).
+    """
 
     loader: LoaderSpec
     soil: SoilSpec
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     seed: int = 0
+    start: tuple[tuple[str, float], ...] = ()
+    sensor_tau: float = 0.0
 
     @classmethod
     def from_episode(cls, ep: EpisodeData) -> TwinSpec:
@@ -80,11 +90,12 @@ class TwinSpec:
                 else (ep.soil if ep is not None and ep.soil else make_soil("gravel")))
         kwargs = _physics_kwargs(doc.get("env_kwargs", ep.env_kwargs if ep is not None else {}))
         seed = doc.get("seed", ep.seed if ep is not None and ep.seed is not None else 0)
-        return cls(loader, soil, kwargs, int(seed))
+        start = tuple(sorted((str(k), float(v)) for k, v in dict(doc.get("start", {})).items()))
+        return cls(loader, soil, kwargs, int(seed), start, float(doc.get("sensor_tau", 0.0)))
 
     def to_dict(self) -> dict[str, Any]:
         return {"scale": self.loader.to_dict(), "soil": self.soil.to_dict(), "env_kwargs": dict(self.env_kwargs),
-                "seed": self.seed}
+                "seed": self.seed, "start": dict(self.start), "sensor_tau": self.sensor_tau}
 
 
 def _scale(value: Any) -> float | str:
@@ -129,12 +140,15 @@ class Simulator:
     def control_dt(self) -> float:
         return float(self.env(Structure()).dt)
 
-    def run(self, commands: np.ndarray, plan: Plan | None = None, two_routes: bool | None = None) -> SimResult:
-        """Replay ``commands`` (steps, 3) with ``plan`` from the twin's seed; signals after sensor models."""
+    def run(self, commands: np.ndarray, plan: Plan | None = None, two_routes: bool | None = None,
+            start: tuple[tuple[str, float], ...] | None = None) -> SimResult:
+        """Replay ``commands`` (steps, 3) with ``plan`` from the twin's seed and start (``start`` overrides the
+        twin's); signals after sensor models and the twin's sensor filter."""
         plan = plan or Plan()
         env = self.env(plan.structure, two_routes)
         env.set_physics(plan.physics)
-        env.reset(seed=self.twin.seed)
+        options = dict(self.twin.start if start is None else start)
+        env.reset(seed=self.twin.seed, options=options or None)
         self.runs += 1
         rows: list[dict[str, float]] = []
         phases: list[str] = []
@@ -151,6 +165,8 @@ class Simulator:
         signals = {k: _padded([r[k] for r in rows], n) for k in names}
         time = env.dt * np.arange(1, n + 1)
         signals = apply_sensors(signals, time, plan.sensors) if plan.sensors else signals
+        if self.twin.sensor_tau > 0.0:
+            signals = {k: first_order_filter(v, env.dt, self.twin.sensor_tau) for k, v in signals.items()}
         return SimResult(signals, np.asarray(phases + ["error"] * (n - len(phases)), dtype=object), error)
 
 

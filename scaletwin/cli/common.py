@@ -7,6 +7,10 @@ import json
 from pathlib import Path
 from typing import Any
 
+from scaletwin.cli import CommandError
+
+EXECUTORS = ("local", "serial", "ray")
+
 
 def scale_arg(text: str) -> float | str:
     """A preset name or a float length ratio (validated by the env, which lists what is accepted)."""
@@ -31,3 +35,59 @@ def write_json(path: str | Path, payload: Any) -> None:
     tmp = path.with_suffix(path.suffix + ".tmp")
     tmp.write_text(json.dumps(payload, indent=2, sort_keys=True, default=str))
     tmp.replace(path)
+
+
+def add_executor_args(p: argparse.ArgumentParser) -> None:
+    """``--executor {local,serial,ray}``, ``--ray-address ADDR`` and ``--ray-cpus N`` (read by
+    :func:`executor_from_args`; the command defines its own ``--workers``)."""
+    p.add_argument("--executor", choices=EXECUTORS, default=None,
+                   help="where tasks run: local processes (default; --workers sets how many), serial (this "
+                        "process) or ray")
+    p.add_argument("--ray-address", metavar="ADDR", default=None,
+                   help="Ray cluster to connect to (implies --executor ray): 'auto', HOST:6379 or ray://HOST:10001; "
+                        "default: $RAY_ADDRESS, else a new local Ray. Give outputs as a URI (s3://...) every node "
+                        "can write to")
+    p.add_argument("--ray-cpus", metavar="N", type=float, default=None,
+                   help="CPUs reserved per Ray task, also its torch threads (default 1)")
+
+
+def executor_arg(workers: str | int | None) -> str | int | None:
+    """``None`` (all cores), ``"serial"`` or a process count, from ``--workers``."""
+    if workers is None or workers == "serial" or isinstance(workers, int):
+        return workers
+    try:
+        return int(workers)
+    except ValueError as exc:
+        raise CommandError(f"--workers must be an integer or 'serial', got {workers!r}") from exc
+
+
+def executor_from_args(args: argparse.Namespace, workers: str | int | None = None) -> Any:
+    """The executor spec of the options of :func:`add_executor_args` plus the command's ``--workers`` value:
+    ``None``/an int/``"serial"`` for local runs (see :func:`scaletwin_envs.parallel.make_executor`), or a
+    :class:`~scaletwin_envs.parallel.RayExecutor`.
+
+    Raises:
+        CommandError: contradictory options, or Ray asked for but not installed.
+    """
+    kind = args.executor or ("ray" if args.ray_address else "local")
+    if kind != "ray":
+        given = [flag for flag, value in (("--ray-address", args.ray_address), ("--ray-cpus", args.ray_cpus))
+                 if value is not None]
+        if given:
+            raise CommandError(f"{' and '.join(given)} {'apply' if len(given) > 1 else 'applies'} to --executor ray "
+                               "only")
+    if kind == "local":
+        return executor_arg(workers)
+    if workers is not None:
+        raise CommandError(f"--workers applies to local processes only, not --executor {kind}")
+    if kind == "serial":
+        return "serial"
+    cpus = 1.0 if args.ray_cpus is None else args.ray_cpus
+    if not cpus > 0:
+        raise CommandError(f"--ray-cpus must be > 0, got {args.ray_cpus}")
+    try:
+        from scaletwin_envs.parallel import RayExecutor
+
+        return RayExecutor(args.ray_address, num_cpus=cpus)
+    except ImportError as exc:
+        raise CommandError(f"--executor ray: {exc}") from exc

@@ -1,16 +1,18 @@
-"""``scaletwin dataset``: a resumable sweep of recorded episodes (scales × soils × piles × seeds) to Parquet."""
+"""``scaletwin dataset``: a resumable sweep of recorded episodes (scales × soils × piles × seeds) to Parquet, in local
+processes or on Ray, into a folder or a filesystem URI (``s3://bucket/prefix``, ``file:///data/run``)."""
 
 from __future__ import annotations
 
 import argparse
 
 from scaletwin.cli import CommandError
-from scaletwin.cli.common import scale_arg
+from scaletwin.cli.common import add_executor_args, executor_from_args, scale_arg
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("dataset", help="record a grid of dig episodes into a Parquet dataset (resumable)")
-    p.add_argument("out", help="dataset folder (one ep-<hash>.parquet per episode, plus manifest.json)")
+    p.add_argument("out", help="dataset folder or filesystem URI such as s3://bucket/prefix (one "
+                               "ep-<hash>.parquet per episode, plus manifest.json)")
     p.add_argument("--scales", nargs="+", type=scale_arg, default=["mini"],
                    help="presets or length ratios vs the ER12 (default mini)")
     p.add_argument("--law", default="product_line", choices=("product_line", "froude"),
@@ -26,8 +28,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--policy", default="scripted",
                    help="'scripted' or a policy factory 'package.module:function' (default scripted)")
     p.add_argument("--workers", type=int, default=None, help="local processes (default: all cores; 1 = serial)")
-    p.add_argument("--executor", choices=("local", "serial", "ray"), default=None,
-                   help="executor engine (default local processes)")
+    add_executor_args(p)
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     p.set_defaults(func=run)
 
@@ -37,12 +38,11 @@ def run(args: argparse.Namespace) -> int:
 
     if args.episodes is not None and args.episodes < 1:
         raise CommandError(f"--episodes must be >= 1, got {args.episodes}")
-    if args.workers is not None and args.executor not in (None, "local"):
-        raise CommandError("--workers applies to local processes only")
+    executor = executor_from_args(args, args.workers)
     seeds = tuple(range(args.episodes)) if args.episodes else tuple(args.seeds or (0,))
     spec = SweepSpec(scales=tuple(args.scales), soils=tuple(args.soils), pile_distances=tuple(args.pile_distances),
                      pile_heights=tuple(args.pile_heights), seeds=seeds, policy=args.policy, law=args.law)
-    result = run_sweep(spec, args.out, executor=args.workers or args.executor, progress=not args.no_progress)
+    result = run_sweep(spec, args.out, executor=executor, progress=not args.no_progress)
     recorded = result.ran - result.failed  # ``ran`` counts every episode attempted now, the failed ones too
     rate = result.ran / result.seconds if result.seconds > 0 else float("nan")
     print(f"{result.out_dir}: {recorded} recorded, {result.skipped} already present, {result.failed} failed "

@@ -3,11 +3,20 @@ it, and show the residual before and after (held-out cycles with ``--held-out``)
 
 REAL is a recording (our Parquet, or a CSV/Parquet log with ``name [unit]`` headers) holding the commands. The
 twin is rebuilt from its provenance unless ``--twin`` names one (a JSON file or ``SCALE[:SOIL]``).
+
+Progress goes to stderr, one line per pipeline step with the seconds elapsed (``--quiet`` silences it); the result
+goes to stdout, one block per effect with full targets, intervals and units, wrapped at the terminal's width
+without cutting a name (:func:`discrepancy.report.document.text_report`).
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
+import time
+from collections.abc import Callable
+
+from scaletwin.cli.common import add_executor_args, executor_from_args
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -19,7 +28,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", metavar="OUT", help="write the JSON report")
     p.add_argument("--rrd", metavar="OUT", help="write a rerun recording (real, twin, corrected overlaid)")
     p.add_argument("--report", metavar="OUT.md", help="write a Markdown report with plots")
-    p.add_argument("--workers", type=int, default=1, help="processes replaying the twin (default 1)")
+    p.add_argument("--workers", type=int, default=None, help="local processes replaying the twin (default 1)")
+    add_executor_args(p)
     p.add_argument("--seed", type=int, default=0, help="seed of the null runs and the bootstrap (default 0)")
     p.add_argument("--budget", type=int, default=None, metavar="REPLAYS",
                    help="twin replays after which the search stops (deterministic; "
@@ -27,39 +37,43 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--time-budget", type=float, default=None, metavar="SECONDS",
                    help="wall-clock seconds after which the search stops, a safety net reported in the output "
                         "(default: discrepancy.search.budget.SECONDS)")
+    p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     p.set_defaults(func=run)
 
 
+def _progress(start: float) -> Callable[[str], None]:
+    """A callback printing each step as it starts, with the seconds since ``start``, to stderr."""
+
+    def report(step: str) -> None:
+        print(f"[{time.perf_counter() - start:6.1f} s] {step}", file=sys.stderr, flush=True)
+
+    return report
+
+
 def run(args: argparse.Namespace) -> int:
-    from rich.console import Console
-    from rich.table import Table
-
     from discrepancy import DiagnoseOptions, NullSpec, diagnose
-    from discrepancy.report.document import to_json, write_json, write_markdown
+    from discrepancy.report.document import text_report, to_json, write_json, write_markdown
 
+    start = time.perf_counter()
+    progress = None if args.quiet else _progress(start)
     limits = {k: v for k, v in (("budget", args.budget), ("time_budget", args.time_budget)) if v is not None}
-    options = DiagnoseOptions(workers=args.workers, null=NullSpec(seed=args.seed), seed=args.seed, **limits)
+    executor = executor_from_args(args, args.workers)  # checks the combination of options
+    local = args.executor in (None, "local") and args.ray_address is None
+    options = DiagnoseOptions(workers=args.workers or 1 if local else 1,
+                              executor=None if local or executor == "serial" else executor,
+                              null=NullSpec(seed=args.seed), seed=args.seed, progress=progress, **limits)
     d = diagnose(args.real, args.twin, held_out=args.held_out, options=options)
+    if progress is not None:
+        progress("done")
     to_json(d)  # validates
-    console = Console()
-    cut = f", search cut short by its {d.budget.cut} budget" if d.budget and d.budget.cut else ""
-    table = Table(title=f"{d.train.name}: {len(d.located)} located windows, {d.simulations} twin replays, "
-                        f"{d.timings['total']:.1f} s{cut}")
-    for col in ("effect", "target", "parameters (SI)", "confidence", "confounded with"):
-        table.add_column(col)
-    for e in d.effects:
-        params = ", ".join(f"{k}={v:.4g}" for k, v in e.parameters.items())
-        table.add_row(e.effect, e.target or "-", params or "-", f"{e.confidence:.2f}", ", ".join(e.confounded_with))
-    if not d.effects:
-        table.add_row("(none)", "-", "-", "-", "nothing differs beyond noise" if not d.located else "")
-    console.print(table)
+    print(text_report(d), end="")
     for flag, path, writer in (("json", args.json, write_json), ("report", args.report, write_markdown)):
         if path:
             writer(d, path)
-            console.print(f"{flag}: {path}")
+            print(f"{flag}: {path}")
     if args.rrd:
         from discrepancy.report.rerun_out import write_rrd
 
         write_rrd(d, args.rrd)
-        console.print(f"rrd: {args.rrd}")
+        print(f"rrd: {args.rrd}")
     return 0

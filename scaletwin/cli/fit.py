@@ -12,12 +12,15 @@ from __future__ import annotations
 import argparse
 from dataclasses import replace
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from scaletwin.cli import CommandError
+from scaletwin.cli.common import add_executor_args, executor_arg, executor_from_args
 
 if TYPE_CHECKING:
     import pandas as pd
+
+__all__ = ["executor_arg", "register", "run"]  # executor_arg: kept here for the commands that import it from here
 
 DEFAULT_OUT = Path("scaletwin-fit")
 #: ``scaling.data.PRESETS`` and ``scaling.pipeline.DEFAULT_MODELS`` by name, spelt out so that registering the
@@ -28,12 +31,12 @@ MODEL_NAMES = ("ffnn", "ffnn-pose", "gru-eq10", "gru-eq23", "power-law", "direct
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("fit", help="fit δ1 scaling models on recordings; write models, metrics and provenance")
-    p.add_argument("--data", type=Path, help="recordings folder, used as it is (default: simulate --dataset into "
-                                             "OUT/data/train)")
+    p.add_argument("--data", help="recordings folder or filesystem URI (s3://...), used as it is (default: simulate "
+                                  "--dataset into OUT/data/train)")
     p.add_argument("--dataset", default="standard", choices=DATASET_PRESETS,
                    help="preset simulated when no --data is given (default standard: ER12 + WA475)")
-    p.add_argument("--held-out", type=Path, help="recordings of machines never trained on "
-                                                 "(default OUT/data/held_out, simulated: λ = 0.5 and 2.5)")
+    p.add_argument("--held-out", help="recordings (folder or URI) of machines never trained on "
+                                      "(default OUT/data/held_out, simulated: λ = 0.5 and 2.5)")
     p.add_argument("--no-held-out", action="store_true", help="skip the machines never trained on")
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"model directory (default ./{DEFAULT_OUT})")
     p.add_argument("--models", default=",".join(MODEL_NAMES),
@@ -43,32 +46,26 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of split, reference draw and fits (default 0)")
     p.add_argument("--epochs", type=int, help="cap the training epochs of the neural models (quick runs)")
     p.add_argument("--workers", default=None, help="processes for simulations (integer or 'serial'; default all)")
+    add_executor_args(p)
     p.add_argument("--no-rerun", action="store_true", help="do not write rerun logs of the fits")
     p.set_defaults(func=run)
 
 
-def executor_arg(workers: str | int | None) -> str | int | None:
-    """``None`` (all cores), ``"serial"`` or a process count, from the command line."""
-    if workers is None or workers == "serial" or isinstance(workers, int):
-        return workers
-    try:
-        return int(workers)
-    except ValueError as exc:
-        raise CommandError(f"--workers must be an integer or 'serial', got {workers!r}") from exc
-
-
-def _data(given: Path | None, default: Path, preset: str, workers: str | int | None) -> pd.DataFrame:
-    """Recordings of ``given`` as they are, or of ``preset`` simulated into ``default`` (resumable)."""
+def _data(given: str | None, default: Path, preset: str, executor: Any) -> pd.DataFrame:
+    """Recordings of ``given`` (a folder or filesystem URI) as they are, or of ``preset`` simulated into ``default``
+    (resumable) through ``executor`` (see :func:`scaletwin.cli.common.executor_from_args`)."""
+    from scaletwin_envs.recording.atomic import exists
     from scaling.data import PRESETS, load_or_generate, load_recordings
 
     if given is None:
-        return load_or_generate(default, PRESETS[preset], executor_arg(workers))
-    if not given.exists():
+        return load_or_generate(default, PRESETS[preset], executor)
+    if not exists(given):
         raise CommandError(f"no recordings folder {given}")
     return load_recordings(given)
 
 
 def run(args: argparse.Namespace) -> int:
+    executor = executor_from_args(args, args.workers)  # before the heavy imports: bad options fail at once
     from rich.console import Console
     from rich.table import Table
 
@@ -87,8 +84,8 @@ def run(args: argparse.Namespace) -> int:
             raise CommandError("--epochs must be >= 1")
         specs = tuple(replace(s, config={**s.config, "epochs": args.epochs}) if "epochs" in s.config else s
                       for s in specs)
-    train = _data(args.data, out / "data" / "train", args.dataset, args.workers)
-    held = None if args.no_held_out else _data(args.held_out, out / "data" / "held_out", "held_out", args.workers)
+    train = _data(args.data, out / "data" / "train", args.dataset, executor)
+    held = None if args.no_held_out else _data(args.held_out, out / "data" / "held_out", "held_out", executor)
     machines = ", ".join(sorted(train["machine"].astype(str).unique()))
     console.print(f"training: {len(train)} rows of {machines}" + ("" if held is None else
                   f"; never trained on: {len(held)} rows of " + ", ".join(sorted(held["machine"].unique()))))

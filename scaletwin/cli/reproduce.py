@@ -11,6 +11,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from scaletwin.cli.common import add_executor_args, executor_from_args
+
 DEFAULT_OUT = Path("scaletwin-reproduce")
 
 
@@ -21,13 +23,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--workers", default=None,
                    help="processes for simulations and the grid (integer or 'serial'; default all cores)")
     p.add_argument("--no-rerun", action="store_true", help="do not write rerun logs of the fits")
+    add_executor_args(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    executor = executor_from_args(args, args.workers)  # before the heavy imports: bad options fail at once
     from rich.console import Console
 
-    from scaletwin.cli.fit import executor_arg
     from scaling.report import headline_rows
     from scaling.reproduce import QUICK, ReproduceConfig, reproduce
 
@@ -35,7 +38,7 @@ def run(args: argparse.Namespace) -> int:
     config = QUICK if args.quick else ReproduceConfig()
     console.print(f"[bold]Reproducing[/bold] into {args.out}/ ({'quick smoke run' if args.quick else 'full'}): "
                   "data -> grid search -> fits -> figures -> miniature -> report")
-    result = reproduce(args.out, config, executor_arg(args.workers), progress=True, rerun=not args.no_rerun)
+    result = reproduce(args.out, config, executor, progress=True, rerun=not args.no_rerun)
     for quantity, paper, ours, target, met in headline_rows(result):
         console.print(f"  {quantity}: ours {ours} (paper {paper}; target {target}: {met})")
     console.print(f"report: {args.out / 'report.md'}; timings (s): "

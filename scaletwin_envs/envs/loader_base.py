@@ -4,12 +4,26 @@ It owns what every loader task shares: building the model at any scale, turning 
 cylinder and drive speeds, stepping the physics with a hook for external forces between physics blocks,
 reading the Eq. (10)/(23) signals, and catching numerical blow-ups. Tasks override the hooks
 ``_reset_task``, ``_apply_external_forces``, ``_after_physics``, ``_get_obs``, ``_reward`` and
-``_terminated``.
+``_terminated``; tasks that accept ``reset(options=...)`` list them in :attr:`LoaderEnv.RESET_OPTIONS`.
+
+Gymnasium conventions every loader shares:
+
+* actions outside [-1, 1] are clipped, as gymnasium's MuJoCo v5 environments do (MuJoCo clamps their ``ctrl``
+  to ``ctrlrange`` silently); here the step's ``info["action_clipped"]`` says whether it happened;
+* after a step that ended in a simulation error (``info["sim_error"]``), stepping again without ``reset`` raises
+  :class:`EpisodeFinishedError`: MuJoCo has reset the diverged state, so carrying on would silently continue
+  from a state the policy never saw;
+* ``render_mode="human"`` needs a display: without one (Linux without ``DISPLAY``/``WAYLAND_DISPLAY``, or
+  ``MUJOCO_GL=egl``/``osmesa``) the constructor raises ``ValueError`` instead of the GL library aborting the
+  process, and ``"human"`` is left out of the instance's ``metadata["render_modes"]`` (so gymnasium's
+  ``check_env`` tries only the modes that can work here).
 """
 
 from __future__ import annotations
 
 import math
+import os
+import sys
 from collections.abc import Mapping
 from typing import Any, ClassVar
 
@@ -21,17 +35,35 @@ from gymnasium.envs.mujoco.mujoco_env import MujocoEnv
 from scaletwin_envs.builder import BuildOptions, build_model
 from scaletwin_envs.envs.hydraulics import CylinderValve
 from scaletwin_envs.signals import SignalReader
-from scaletwin_envs.specs.laws import PRODUCT_LINE, ScalingLaw
+from scaletwin_envs.specs.laws import PRODUCT_LINE, ScalingLaw, make_law
 from scaletwin_envs.specs.loader import LoaderSpec, make_loader
 
 DEFAULT_FRAME_SKIP = 100  # 10 Hz control at the ER12 (100 ms × √λ)
 DEFAULT_EXTERNAL_FORCE_SUBSTEPS = 20  # soil resistance refreshed every 20 ms × √λ (it acts through implicit dampers)
+#: MUJOCO_GL back ends that render off-screen only (no window can open).
+HEADLESS_GL = ("egl", "osmesa")
+
+
+class EpisodeFinishedError(RuntimeError):
+    """``step`` was called on an episode that ended in a simulation error; call ``reset`` first."""
+
+
+def display_available() -> bool:
+    """Whether a ``render_mode="human"`` window can open: always on macOS/Windows; on Linux an X11 or Wayland
+    display (``DISPLAY``/``WAYLAND_DISPLAY``) and a MuJoCo GL back end that is not off-screen only."""
+    if os.environ.get("MUJOCO_GL", "").lower() in HEADLESS_GL:
+        return False
+    if not sys.platform.startswith("linux"):
+        return True
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
 class LoaderEnv(MujocoEnv):
     """Base class: a loader of any size with lift, tilt and drive commands in [-1, 1]."""
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["human", "rgb_array", "depth_array"]}
+    #: ``reset(options=...)`` keys this env accepts → what they set (any other key raises ``ValueError``).
+    RESET_OPTIONS: ClassVar[Mapping[str, str]] = {}
 
     def __init__(
         self,
@@ -45,6 +77,9 @@ class LoaderEnv(MujocoEnv):
         height: int = 480,
         two_route_check: bool = True,
     ) -> None:
+        if not isinstance(scale, int | float) and make_law(law) != PRODUCT_LINE:
+            raise ValueError(f"law={law!r} applies to float scales only; scale={scale!r} is a fixed machine (a preset "
+                             "or a LoaderSpec): pass a length ratio to build it on that law")
         self.loader = make_loader(scale, law, distortion)
         for name, value in (("frame_skip", frame_skip), ("external_force_substeps", external_force_substeps)):
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
@@ -54,20 +89,66 @@ class LoaderEnv(MujocoEnv):
                              f"({external_force_substeps})")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
+        headless = not display_available()
+        if render_mode == "human" and headless:
+            raise ValueError("render_mode='human' needs a display, and none is available (no DISPLAY or "
+                             "WAYLAND_DISPLAY, or MUJOCO_GL=egl/osmesa): use render_mode='rgb_array' and save or "
+                             "stream the frames, or record the episode (scaletwin simulate --rrd) and open it "
+                             "with scaletwin view")
         self.build_options = BuildOptions.for_spec(self.loader)
         self.external_force_substeps = external_force_substeps
         self.two_route_check = two_route_check
         dt = self.build_options.timestep * frame_skip
-        self.metadata = {**type(self).metadata, "render_fps": int(np.round(1.0 / dt))}
+        modes = [m for m in type(self).metadata["render_modes"] if not (headless and m == "human")]
+        self.metadata = {**type(self).metadata, "render_modes": modes, "render_fps": int(np.round(1.0 / dt))}
         MujocoEnv.__init__(self, model_path=__file__, frame_skip=frame_skip, observation_space=None,
                            render_mode=render_mode, width=width, height=height, camera_name="side")
         self.signal_reader = SignalReader(self.model, {
             "lift": (self.loader.lift.bore_area, self.loader.lift.annulus_area),
             "tilt": (self.loader.tilt.bore_area, self.loader.tilt.annulus_area)}, self.loader.weight)
         self._slide = {k: self.model.joint(f"{k}_cylinder") for k in ("lift", "tilt")}
+        # (qpos address, dof address, lower end of travel) per cylinder: read every step, resolved once
+        self._slide_adr = {k: (int(j.qposadr[0]), int(j.dofadr[0]), float(j.range[0])) for k, j in self._slide.items()}
+        self._warnings = tuple(int(w) for w in (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL,
+                                                 mujoco.mjtWarning.mjWARN_BADQACC))
         self.valves = {k: CylinderValve(getattr(self.loader, k), *self._slide[k].range,
                                         hold_time=0.2 * self.loader.froude_time) for k in ("lift", "tilt")}
         self.signals: dict[str, float] = {}
+        self.action_clipped = False  # whether the last action had a component outside [-1, 1]
+        self.sim_error: str | None = None  # why the episode ended in a simulation error (None: it did not)
+        self.reset_options: dict[str, float] = {}  # the validated options of the last reset
+
+    # -- reset -------------------------------------------------------------------------------------------
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
+        """Gymnasium reset; ``options`` may hold the keys of :attr:`RESET_OPTIONS` (validated, then available to
+        ``reset_model`` as :attr:`reset_options`)."""
+        self.reset_options = self._validate_reset_options(options)
+        self.sim_error = None
+        return super().reset(seed=seed, options=options)
+
+    def _validate_reset_options(self, options: Mapping[str, Any] | None) -> dict[str, float]:
+        """Check ``options`` against :attr:`RESET_OPTIONS`: known keys, finite numbers (subclasses check ranges)."""
+        if options is None:
+            return {}
+        if not isinstance(options, Mapping):
+            raise ValueError(f"reset options must be a dict, got {type(options).__name__}")
+        unknown = sorted(set(options) - set(self.RESET_OPTIONS))
+        if unknown:
+            accepted = ", ".join(f"{k} ({v})" for k, v in self.RESET_OPTIONS.items()) or "none"
+            raise ValueError(f"unknown reset option(s) {unknown}; accepted: {accepted}")
+        out = {}
+        for k, v in options.items():
+            if isinstance(v, bool) or not isinstance(v, int | float | np.floating | np.integer) or not math.isfinite(v):
+                raise ValueError(f"reset option {k!r} must be a finite number, got {v!r}")
+            out[k] = float(v)
+        return out
+
+    def _check_running(self) -> None:
+        """Raise :class:`EpisodeFinishedError` if the episode ended in a simulation error (call at each step)."""
+        if self.sim_error is not None:
+            raise EpisodeFinishedError(f"the episode ended in a simulation error ({self.sim_error}); call reset() "
+                                       "before stepping again (gymnasium: step after the end of an episode needs "
+                                       "a reset)")
 
     # -- MujocoEnv plumbing ------------------------------------------------------------------------------
     def _initialize_simulation(self) -> tuple[mujoco.MjModel, mujoco.MjData]:
@@ -87,12 +168,15 @@ class LoaderEnv(MujocoEnv):
             raise ValueError(f"action must have shape (3,) = [lift, tilt, drive] in [-1, 1], got shape {a.shape}")
         if not np.all(np.isfinite(a)):
             raise ValueError(f"action must be finite, got {a.tolist()}")
-        return np.clip(a, -1.0, 1.0)
+        clipped = np.clip(a, -1.0, 1.0)
+        self.action_clipped = bool(np.any(clipped != a))
+        return clipped
 
     def _command_to_ctrl(self, a: np.ndarray) -> np.ndarray:
         ctrl = np.zeros(3)
+        qpos = self.data.qpos
         for i, k in enumerate(("lift", "tilt")):
-            ctrl[i] = self.valves[k].speed(float(a[i]), float(self.data.qpos[self._slide[k].qposadr[0]]))
+            ctrl[i] = self.valves[k].speed(float(a[i]), float(qpos[self._slide_adr[k][0]]))
         ctrl[2] = float(a[2]) * self.loader.travel_speed
         return ctrl
 
@@ -118,8 +202,7 @@ class LoaderEnv(MujocoEnv):
 
     def _bad_state_warnings(self) -> int:
         w = self.data.warning
-        return sum(int(w[k].number) for k in (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL,
-                                               mujoco.mjtWarning.mjWARN_BADQACC))
+        return sum(int(w[k].number) for k in self._warnings)
 
     def actuator_force(self, which: str) -> float:
         """The valve's force on ``"lift"`` or ``"tilt"`` (N) at the last physics step: the servo's output, which
@@ -129,8 +212,8 @@ class LoaderEnv(MujocoEnv):
 
     def cylinder_state(self, which: str) -> tuple[float, float]:
         """Extension from fully retracted (m) and speed (m/s) of ``"lift"`` or ``"tilt"``."""
-        j = self._slide[which]
-        return (float(self.data.qpos[j.qposadr[0]] - j.range[0]), float(self.data.qvel[j.dofadr[0]]))
+        qpos_adr, dof, lower = self._slide_adr[which]
+        return (float(self.data.qpos[qpos_adr] - lower), float(self.data.qvel[dof]))
 
     # -- hooks -------------------------------------------------------------------------------------------
     def _apply_external_forces(self) -> None:

@@ -14,29 +14,53 @@ Reward: fill gained (fraction of heaped capacity) minus time, hydraulic energy a
 the machine has pulled back (``info["success"]`` if the fill factor reaches ``success_fill``), and is truncated
 at ``max_episode_time`` (Froude time units) or on a physics blow-up (``info["sim_error"]``).
 
+Registration: ``max_episode_steps`` is :data:`scaletwin_envs.MAX_EPISODE_STEPS` (290), the control steps in the
+default ``max_episode_time`` at the default ``frame_skip`` at every scale (the control step and the Froude time
+both grow as √λ); when changing either, pass ``max_episode_steps=horizon_steps(max_episode_time, frame_skip)`` to
+``gym.make`` as well, or gymnasium's ``TimeLimit`` truncates at 290 steps (``env.unwrapped.horizon`` is the env's
+own).
+
+Info: every step returns the same keys (:data:`INFO_KEYS`), a ``sim_error`` step included: ``sim_error`` is None,
+or why the physics failed; then the signals are those of the last good step, the reward terms 0.0, the phase
+``"error"``, and stepping again without ``reset`` raises
+:class:`~scaletwin_envs.envs.loader_base.EpisodeFinishedError`. ``action_clipped`` says whether the action had a
+component outside [-1, 1]: such actions are clipped to it, as gymnasium's MuJoCo v5 environments do.
+
+Reset options (``reset(seed=..., options={...})``, see :data:`WheelLoaderDigEnv.RESET_OPTIONS`): a value given
+is used exactly, for this episode only, instead of the nominal value plus its random perturbation; the random
+draws are made all the same, so the quantities not given are those the same seed gives without options. Any
+other key, or a value out of range, raises ``ValueError``.
+
 Version history:
     v0: initial release (scaletwin 0.1).
+    v0 (2026-11-25, same dynamics and signals): registered with ``max_episode_steps=290``; the same info keys on
+    a ``sim_error`` step and an error on stepping after it; ``info["action_clipped"]``; ``reset(options=...)``
+    honoured (start pose, pile); ``law`` other than the default with a preset or LoaderSpec raises ``ValueError``
+    (it was ignored); ``render_mode="human"`` without a display raises ``ValueError`` (the GL library aborted);
+    the per-step soil force, signals and observation code reads MuJoCo's arrays with less Python overhead, with
+    bit-identical results. No value a step returns changed, so the id stays v0.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, ClassVar
 
 import mujoco
 import numpy as np
 from gymnasium import spaces
 
+from scaletwin_envs.builder import BuildOptions
 from scaletwin_envs.envs.loader_base import DEFAULT_EXTERNAL_FORCE_SUBSTEPS, DEFAULT_FRAME_SKIP, LoaderEnv
 from scaletwin_envs.envs.phases import DigPhase, classify
 from scaletwin_envs.physics.bucket import load_centroid
 from scaletwin_envs.physics.dig import DigForces, DigModel
-from scaletwin_envs.physics.kinematics import solve_pose
+from scaletwin_envs.physics.kinematics import LinkageUnreachable, solve_pose
 from scaletwin_envs.physics.pile import Pile
 from scaletwin_envs.runtime import draw_pile, qpos_for_pose, set_payload
 from scaletwin_envs.specs.laws import PRODUCT_LINE, ScalingLaw
-from scaletwin_envs.specs.loader import GRAVITY, LoaderSpec
+from scaletwin_envs.specs.loader import GRAVITY, LoaderSpec, make_loader
 from scaletwin_envs.specs.soil import SoilSpec, make_soil
 
 OBS_NAMES = (
@@ -46,6 +70,19 @@ OBS_NAMES = (
 )
 OBS_INDEX = {n: i for i, n in enumerate(OBS_NAMES)}
 OBS_LIMIT = 10.0
+#: Keys of every step's ``info`` (a ``sim_error`` step included).
+INFO_KEYS = ("signals", "phase", "reward_terms", "fill_factor", "loaded_mass", "spilled_mass", "hydraulic_work",
+             "time", "success", "sim_error", "action_clipped")
+REWARD_TERMS = ("fill", "time", "energy", "spill")
+
+
+def horizon_steps(max_episode_time: float = 60.0, frame_skip: int = DEFAULT_FRAME_SKIP) -> int:
+    """Control steps after which the env truncates itself, for ``max_episode_time`` (Froude times) and ``frame_skip``:
+    the same at every scale on either law (the physics timestep and the Froude time both grow as √λ). Pass it as
+    ``gym.make(..., max_episode_steps=horizon_steps(t))`` when changing either from its default."""
+    ref = make_loader("er12")
+    dt = BuildOptions.for_spec(ref).timestep * frame_skip
+    return math.ceil(max_episode_time * ref.froude_time / dt - 1e-9)
 
 
 def _positive(name: str, value: float) -> float:
@@ -70,8 +107,16 @@ class WheelLoaderDigEnv(LoaderEnv):
         fill_reward_weight, time_cost_weight, energy_cost_weight, spill_cost_weight: reward weights.
         frame_skip, external_force_substeps: physics steps per control step / per soil-force update.
         two_route_check: also solve the Newton–Euler route every step (``*_route2``, ``residual_*`` signals).
-        render_mode, width, height: as in gymnasium's MuJoCo environments.
+        render_mode, width, height: as in gymnasium's MuJoCo environments (``"human"`` needs a display).
     """
+
+    RESET_OPTIONS: ClassVar[Mapping[str, str]] = {
+        "boom_angle": "start boom angle vs the reference dig pose, rad (default U(0, 0.03)·noise)",
+        "bucket_angle": "start bucket angle vs the boom, rad (default U(-0.03, 0.03)·noise)",
+        "pile_distance": "cutting edge to pile toe, boom lengths, > 0 (default pile_distance + U(-0.05, 0.05)·noise)",
+        "pile_height": "pile height, boom lengths, > 0 (default pile_height·(1 + U(-0.08, 0.08)·noise))",
+        "repose_angle": "pile repose angle, rad, in (0, π/2) (default the soil's ± 2°·noise)",
+    }
 
     def __init__(
         self,
@@ -113,9 +158,17 @@ class WheelLoaderDigEnv(LoaderEnv):
         self.observation_space = spaces.Box(-OBS_LIMIT, OBS_LIMIT, shape=(len(OBS_NAMES),), dtype=np.float32)
         L = self.loader.characteristic_length
         self.length, self.speed_scale = L, math.sqrt(GRAVITY * L)
+        #: control steps after which this env truncates itself (max_episode_time in steps)
+        self.horizon = math.ceil(self.max_episode_time * self.loader.froude_time / self.dt - 1e-9)
         self._sites = {n: self.model.site(n).id for n in ("bucket_edge", "bucket_heel", "bucket_back_top", "pin_O")}
         self._bucket = self.model.body("bucket").id
         self._site_ids = tuple(self._sites[n] for n in ("bucket_edge", "bucket_back_top", "bucket_heel"))
+        self._cavity_ids = np.array([self._sites[n] for n in ("bucket_heel", "bucket_edge", "bucket_back_top")])
+        self._site_rows = np.array(self._site_ids)
+        self._curl_dofs = tuple(int(self.model.joint(n).dofadr[0]) for n in ("bucket_hinge", "boom_hinge"))
+        # views of MuJoCo's arrays used several times per control step (model and data live as long as the env)
+        self._site_xpos, self._xipos, self._xfrc = self.data.site_xpos, self.data.xipos, self.data.xfrc_applied
+        self._tendon_damping = self.model.tendon_damping
         self._dampers = np.array([self.model.tendon(n).id for n in ("soil_damper_x", "soil_damper_z")])
         self._anchors = (self.model.site("soil_anchor_x").id, self.model.site("soil_anchor_z").id)
         self._vel6 = np.zeros(6)
@@ -124,15 +177,38 @@ class WheelLoaderDigEnv(LoaderEnv):
         self._last_obs = np.zeros(len(OBS_NAMES), dtype=np.float32)
 
     # -- reset -------------------------------------------------------------------------------------------
+    def _validate_reset_options(self, options: Mapping[str, Any] | None) -> dict[str, float]:
+        out = super()._validate_reset_options(options)
+        for k in ("pile_distance", "pile_height"):
+            if k in out and out[k] <= 0:
+                raise ValueError(f"reset option {k!r} must be > 0 (boom lengths), got {out[k]}")
+        if "repose_angle" in out and not 0 < out["repose_angle"] < 0.5 * math.pi:
+            raise ValueError(f"reset option 'repose_angle' must be in (0, pi/2) rad, got {out['repose_angle']}")
+        if "boom_angle" in out or "bucket_angle" in out:
+            boom, bucket = out.get("boom_angle", 0.0), out.get("bucket_angle", 0.0)
+            try:
+                qpos = qpos_for_pose(self.model, self.loader, solve_pose(self.loader.geometry, boom, bucket))
+            except LinkageUnreachable as exc:
+                raise ValueError(f"reset options boom_angle={boom}, bucket_angle={bucket} rad: {exc}") from None
+            for k in ("lift", "tilt"):
+                j = self._slide[k]
+                lo, hi = j.range
+                if not lo <= qpos[j.qposadr[0]] <= hi:
+                    raise ValueError(f"reset options boom_angle={boom}, bucket_angle={bucket} rad put the {k} "
+                                     f"cylinder outside its stroke")
+        return out
+
     def reset_model(self) -> np.ndarray:
         rng, noise, L = self.np_random, self.reset_noise_scale, self.length
-        g = self.loader.geometry
-        pose = solve_pose(g, float(rng.uniform(0.0, 0.03) * noise), float(rng.uniform(-0.03, 0.03) * noise))
+        g, opt = self.loader.geometry, self.reset_options
+        boom, bucket = float(rng.uniform(0.0, 0.03) * noise), float(rng.uniform(-0.03, 0.03) * noise)
+        pose = solve_pose(g, opt.get("boom_angle", boom), opt.get("bucket_angle", bucket))
         self.set_state(qpos_for_pose(self.model, self.loader, pose), np.zeros(self.model.nv))
         edge_x = float(self.data.site_xpos[self._sites["bucket_edge"]][0])
-        toe = edge_x + L * (self.pile_distance + rng.uniform(-0.05, 0.05) * noise)
-        height = L * self.pile_height * (1.0 + rng.uniform(-0.08, 0.08) * noise)
-        repose = self.soil.repose_angle + math.radians(rng.uniform(-2.0, 2.0) * noise)
+        distance = self.pile_distance + rng.uniform(-0.05, 0.05) * noise
+        toe = edge_x + L * opt.get("pile_distance", distance)
+        height = L * opt.get("pile_height", self.pile_height * (1.0 + rng.uniform(-0.08, 0.08) * noise))
+        repose = opt.get("repose_angle", self.soil.repose_angle + math.radians(rng.uniform(-2.0, 2.0) * noise))
         self.pile = Pile(toe, height, repose, length=3.0 * L, width=g.bucket_width)
         self.dig = DigModel(self.soil, self.pile, g.bucket_width, self.loader.heaped_capacity, L)
         for v in self.valves.values():
@@ -148,6 +224,7 @@ class WheelLoaderDigEnv(LoaderEnv):
         mujoco.mj_forward(self.model, self.data)
         mujoco.mj_rnePostConstraint(self.model, self.data)
         self.signals = self._read_signals(self.soil_force())
+        self._good_signals = self._step_signals()
         self._last_obs = self._get_obs()
         return self._last_obs
 
@@ -161,32 +238,33 @@ class WheelLoaderDigEnv(LoaderEnv):
 
     def _apply_external_forces(self) -> None:
         """Refresh the soil resistance: the tendon dampers take the part along travel, ``xfrc_applied`` the press."""
-        sx, ids = self.data.site_xpos, self._site_ids
-        edge, top, heel = sx[ids[0]], sx[ids[1]], sx[ids[2]]
-        mujoco.mj_objectVelocity(self.model, self.data, mujoco.mjtObj.mjOBJ_SITE, ids[0], self._vel6, 0)
-        vx, vz = self._vel6[3], self._vel6[5]
+        # plain floats (the same values as the float64 array elements) keep the scalar arithmetic below fast
+        edge, top, heel = self._site_xpos[self._site_rows].tolist()
+        mujoco.mj_objectVelocity(self.model, self.data, mujoco.mjtObj.mjOBJ_SITE, self._site_ids[0], self._vel6, 0)
+        vx, vz = float(self._vel6[3]), float(self._vel6[5])
         f = self.dig.resistance((edge[0], edge[2]), (top[0], top[2]), (heel[0], heel[2]), (vx, vz))
         speed = math.hypot(vx, vz)
-        self.model.tendon_damping[self._dampers] = f.resist / max(speed, self.dig.creep)
+        self._tendon_damping[self._dampers] = f.resist / max(speed, self.dig.creep)
         scale = min(1.0, speed / self.dig.creep)
         fx, fz = scale * f.press * f.travel[1], -scale * f.press * f.travel[0]
-        com = self.data.xipos[self._bucket]
-        torque_y = (edge[2] - com[2]) * fx - (edge[0] - com[0]) * fz
-        self.data.xfrc_applied[self._bucket] = (fx, 0.0, fz, 0.0, torque_y, 0.0)  # force, torque
+        com_x, _, com_z = self._xipos[self._bucket].tolist()
+        torque_y = (edge[2] - com_z) * fx - (edge[0] - com_x) * fz
+        self._xfrc[self._bucket] = (fx, 0.0, fz, 0.0, torque_y, 0.0)  # force, torque
         self._soil_force = f
 
     def soil_force(self) -> np.ndarray:
         """Soil force on the bucket now (N, x–z): tendon dampers plus the press."""
         edge = self.data.site_xpos[self._site_ids[0]]
         total = self.data.xfrc_applied[self._bucket][[0, 2]].copy()
+        damping, velocity, xpos = self.model.tendon_damping, self.data.ten_velocity, self.data.site_xpos
         for t, anchor in zip(self._dampers, self._anchors, strict=True):
-            u = self.data.site_xpos[anchor] - edge
-            u = u / np.linalg.norm(u)
-            total += self.model.tendon_damping[t] * self.data.ten_velocity[t] * u[[0, 2]]
+            u = xpos[anchor] - edge
+            u = u / math.sqrt(u.dot(u))  # np.linalg.norm of a vector, without its call overhead
+            total += damping[t] * velocity[t] * u[[0, 2]]
         return total
 
     def _after_physics(self) -> None:
-        cavity = np.array([self._site_xz(n) for n in ("bucket_heel", "bucket_edge", "bucket_back_top")])
+        cavity = self.data.site_xpos[self._cavity_ids][:, [0, 2]]
         self.dig.transfer(cavity, self._bucket_pitch())
         self._update_payload()
 
@@ -205,6 +283,7 @@ class WheelLoaderDigEnv(LoaderEnv):
 
     # -- step --------------------------------------------------------------------------------------------
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        self._check_running()
         a = self._validate_action(action)
         before = {"fill": self.dig.fill(), "spill": self.dig.spilled_volume / self.dig.capacity}
         error = self._simulate(self._command_to_ctrl(a))
@@ -213,9 +292,8 @@ class WheelLoaderDigEnv(LoaderEnv):
             sig = self._read_signals(self.soil_force())
             error = None if self._finite(sig) else "non-finite signals"
         if error is not None:
-            info = {"signals": dict(self.signals), "sim_error": error, "phase": "error", "success": False,
-                    "reward_terms": {}}
-            return self._last_obs.copy(), 0.0, False, True, info
+            self.sim_error = error
+            return self._last_obs.copy(), 0.0, False, True, self._error_info(error)
         self.signals = sig
         power = sum(max(sig[f"Pf_{k}"] * self.cylinder_state(k)[1], 0.0) for k in ("lift", "tilt"))
         self._work += power * self.dt
@@ -255,23 +333,42 @@ class WheelLoaderDigEnv(LoaderEnv):
 
     def phase(self) -> DigPhase:
         _, depth = self._edge_state()
-        curl = float(self.data.qvel[self.model.joint("bucket_hinge").dofadr[0]]
-                     + self.data.qvel[self.model.joint("boom_hinge").dofadr[0]])
+        qvel = self.data.qvel
+        curl = float(qvel[self._curl_dofs[0]] + qvel[self._curl_dofs[1]])
         loaded = self.dig.fill() > 0.02
         return classify(depth > 0.0, curl, self.signals["travel_speed"], loaded, self.length)
 
-    def _step_info(self, terms: Mapping[str, float]) -> dict[str, Any]:
+    def _step_signals(self) -> dict[str, float]:
+        """The step's signals: those read from the physics plus the load and the cylinder states."""
         sig = dict(self.signals)
         sig["m_load"] = self.dig.load_mass
         sig["lift_extension"], sig["lift_speed"] = self.cylinder_state("lift")
         sig["tilt_extension"], sig["tilt_speed"] = self.cylinder_state("tilt")
-        self.signals = sig
+        return sig
+
+    def _step_info(self, terms: Mapping[str, float]) -> dict[str, Any]:
+        sig = self._step_signals()
+        self.signals = self._good_signals = sig
         fill = self.dig.fill()
         return {
             "signals": sig, "phase": self.phase().name.lower(), "reward_terms": dict(terms),
             "fill_factor": fill, "loaded_mass": self.dig.load_mass, "spilled_mass": self.dig.spilled_volume
             * self.soil.density, "hydraulic_work": self._work, "time": self._t, "success": fill >= self.success_fill,
-            "sim_error": None,
+            "sim_error": None, "action_clipped": self.action_clipped,
+        }
+
+    def _error_info(self, error: str) -> dict[str, Any]:
+        """The info of a step whose physics failed: the keys of every step, the last good signals, no NaN."""
+
+        def finite(x: float) -> float:
+            return float(x) if math.isfinite(x) else 0.0
+
+        return {
+            "signals": dict(self._good_signals), "phase": "error", "reward_terms": dict.fromkeys(REWARD_TERMS, 0.0),
+            "fill_factor": finite(self.dig.fill()), "loaded_mass": finite(self.dig.load_mass),
+            "spilled_mass": finite(self.dig.spilled_volume * self.soil.density),
+            "hydraulic_work": finite(self._work), "time": self._t, "success": False, "sim_error": error,
+            "action_clipped": self.action_clipped,
         }
 
     # -- observation -------------------------------------------------------------------------------------
@@ -291,7 +388,9 @@ class WheelLoaderDigEnv(LoaderEnv):
             self._t / (self.max_episode_time * self.loader.froude_time),
             self.dig.spilled_volume / self.dig.capacity, (float(self.data.qpos[0]) - self._start_x) / L,
         )
-        obs = np.nan_to_num(np.asarray(values, dtype=np.float64), nan=0.0, posinf=OBS_LIMIT, neginf=-OBS_LIMIT)
+        obs = np.asarray(values, dtype=np.float64)
+        if not np.isfinite(obs).all():
+            obs = np.nan_to_num(obs, nan=0.0, posinf=OBS_LIMIT, neginf=-OBS_LIMIT)
         return np.clip(obs, -OBS_LIMIT, OBS_LIMIT).astype(np.float32)
 
     # -- rendering ---------------------------------------------------------------------------------------

@@ -5,6 +5,15 @@ drawn by a :class:`ScaleSoilSampler`: a preset machine with some probability, ot
 log-uniform over the supported range under a scaling law drawn from ``laws``; the soil uniform over the named
 soils. Building the env costs ~3 ms, a few control steps. Everything is drawn from one generator seeded by
 ``reset(seed=...)``, so a seeded run is reproducible episode by episode.
+
+Registered as ``WheelLoaderDigRandom-v0`` (entry point :func:`make_randomized_dig_env`), with the sampler's fields
+and the inner env's arguments as keyword arguments of ``gym.make``::
+
+    env = gym.make("WheelLoaderDigRandom-v0", scale_range=(0.1, 2.0), soils=("sand", "gravel"),
+                   laws=("product_line", "froude"), two_route_check=False)
+
+A drawn law applies to drawn length ratios only; a drawn preset is built as it is (``info["law"]`` still reports
+the draw, so the draws stay the same whatever the outcome).
 """
 
 from __future__ import annotations
@@ -18,12 +27,18 @@ import gymnasium as gym
 import numpy as np
 
 import scaletwin_envs
+from scaletwin_envs.envs.loader_base import DEFAULT_FRAME_SKIP
+from scaletwin_envs.envs.wheel_loader_dig import horizon_steps
 from scaletwin_envs.specs.laws import LAWS
 from scaletwin_envs.specs.presets import PRESETS
 from scaletwin_envs.specs.soil import SOILS
 
 #: The length ratios (vs the ER12) that ``WheelLoaderDig-v0`` accepts.
 SCALE_RANGE = (0.05, 3.0)
+#: Keyword arguments of :func:`make_randomized_dig_env` that configure the :class:`ScaleSoilSampler`.
+SAMPLER_FIELDS = ("scale_range", "soils", "laws", "presets", "preset_probability")
+#: Inner env arguments the sampler draws (they cannot be fixed through ``env_kwargs``).
+DRAWN_KWARGS = ("scale", "soil", "law")
 
 
 @dataclass(frozen=True)
@@ -78,7 +93,11 @@ class RandomizedDigEnv(gym.Wrapper):
         super().__init__(self._make(self.drawn))
 
     def _make(self, drawn: Mapping[str, Any]) -> gym.Env:
-        return gym.make(scaletwin_envs.ENV_ID, disable_env_checker=True, **{**self.env_kwargs, **drawn})
+        kwargs = {**self.env_kwargs, **drawn}
+        if not isinstance(kwargs["scale"], int | float):
+            kwargs.pop("law", None)  # a preset machine is built as it is; the env rejects a law for it
+        steps = horizon_steps(kwargs.get("max_episode_time", 60.0), kwargs.get("frame_skip", DEFAULT_FRAME_SKIP))
+        return gym.make(scaletwin_envs.ENV_ID, max_episode_steps=steps, disable_env_checker=True, **kwargs)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
         if seed is not None:
@@ -88,6 +107,30 @@ class RandomizedDigEnv(gym.Wrapper):
         self.env = self._make(self.drawn)
         obs, info = self.env.reset(seed=int(self._rng.integers(2**31 - 1)), options=options)
         return obs, {**info, **self.drawn}
+
+
+def make_randomized_dig_env(sampler: ScaleSoilSampler | None = None, env_kwargs: Mapping[str, Any] | None = None,
+                            seed: int | None = None, **kwargs: Any) -> RandomizedDigEnv:
+    """Entry point of ``WheelLoaderDigRandom-v0``: a :class:`RandomizedDigEnv` from flat keyword arguments.
+
+    Args:
+        sampler: a ready sampler; or give its fields (:data:`SAMPLER_FIELDS`: ``scale_range`` as length ratios vs the
+            ER12, ``soils``, ``laws``, ``presets``, ``preset_probability``) as keyword arguments.
+        env_kwargs: inner env arguments; any other keyword argument is one too (e.g. ``two_route_check=False``,
+            ``render_mode="rgb_array"``). ``scale``, ``soil`` and ``law`` are drawn and raise ``ValueError``.
+        seed: seed of the draws (``reset(seed=...)`` reseeds them).
+    """
+    fields = {k: kwargs.pop(k) for k in SAMPLER_FIELDS if k in kwargs}
+    inner = {**dict(env_kwargs or {}), **kwargs}
+    fixed = sorted(set(DRAWN_KWARGS) & set(inner))
+    if fixed:
+        raise ValueError(f"{fixed} are drawn every episode; choose them through {list(SAMPLER_FIELDS)} (or use "
+                         f"{scaletwin_envs.ENV_ID} for one machine and soil)")
+    if fields and sampler is not None:
+        raise ValueError(f"give either sampler= or its fields {sorted(fields)}, not both")
+    if sampler is None:
+        sampler = ScaleSoilSampler(**{k: v if k == "preset_probability" else tuple(v) for k, v in fields.items()})
+    return RandomizedDigEnv(sampler, inner, seed)
 
 
 class CompletionBonus(gym.Wrapper):

@@ -8,15 +8,22 @@ column of :mod:`scaletwin_envs.recording.schema` and ``unit`` anything pint conv
 
 Required (:data:`~scaletwin_envs.recording.schema.REQUIRED_IMPORT`): ``time``, the three commands (the twin
 must be able to replay the episode) and the Eq. (10)/(23) signals F21, F31, Pf_tilt, Pf_lift, x_b, y_b, m_b,
-a1, alpha1, V1, w1 (what the scaling models are fitted on). Every other column is optional; columns that are
-absent stay absent (nothing is invented). Unknown columns are an error unless ``ignore_unknown=True``.
+a1, alpha1, V1, w1 (what the scaling models are fitted on); ``required=`` relaxes that for users that need fewer
+(the discrepancy tool needs time and the commands, and compares whatever signals are there). Every other column
+is optional; columns that are absent stay absent (nothing is invented). Unknown columns are an error unless
+``ignore_unknown=True``.
+
+Data-logger CSVs are read as they come: ``,``, ``;`` or tab as the delimiter, a UTF-8 byte-order mark, spaces
+around headers, and empty trailing columns (from a trailing delimiter) are accepted; empty cells are NaN.
 """
 
 from __future__ import annotations
 
+import csv
 import dataclasses
 import hashlib
 import re
+from collections.abc import Sequence
 from functools import lru_cache
 from pathlib import Path
 from typing import Any
@@ -33,6 +40,8 @@ _HEADER = re.compile(r"^\s*(?P<name>[^\[\]]+?)\s*(?:\[(?P<unit>[^\[\]]*)\])?\s*$
 _UNITLESS_OK = frozenset({"phase", "step"})
 _DIMENSIONLESS = frozenset({"", "1", "-", "dimensionless"})
 _REPLACE = (("·", "*"), ("⋅", "*"), ("²", "**2"), ("³", "**3"), ("^", "**"), ("−", "-"), ("%", "percent"))
+#: Delimiters a data logger writes: comma, semicolon (locales with a decimal comma), tab.
+_DELIMITERS = ",;\t"
 
 
 @lru_cache(maxsize=1)
@@ -59,7 +68,7 @@ def to_si(values: np.ndarray, unit: str, si_unit: str) -> np.ndarray:
 
 
 def import_recording(path: str | Path, *, provenance: Provenance | None = None,
-                     ignore_unknown: bool = False) -> Recording:
+                     ignore_unknown: bool = False, required: Sequence[str] = REQUIRED_IMPORT) -> Recording:
     """Read a CSV or Parquet log with ``name [unit]`` headers into an SI :class:`Recording`.
 
     A scaletwin Parquet recording (with its metadata) is simply read back with :func:`read_recording`.
@@ -69,6 +78,7 @@ def import_recording(path: str | Path, *, provenance: Provenance | None = None,
         provenance: what is known about the machine (spec, soil, seed, ...); ``source`` becomes ``"import"``
             and ``extra`` gains the file name, its SHA-256 and the original headers.
         ignore_unknown: drop unknown columns instead of failing.
+        required: columns that must be present (default :data:`REQUIRED_IMPORT`).
 
     Raises:
         FileNotFoundError: no such file.
@@ -83,7 +93,7 @@ def import_recording(path: str | Path, *, provenance: Provenance | None = None,
     raw = _read_table(path)
     columns, units, problems = _convert(raw, ignore_unknown)
     named = {_split(h)[0] for h in raw.columns}
-    missing = [c for c in REQUIRED_IMPORT if c not in named]
+    missing = [c for c in required if c not in named]
     if missing:
         problems.insert(0, f"missing required columns: {', '.join(missing)}")
     if problems:
@@ -108,10 +118,22 @@ def expected_headers() -> str:
 def _read_table(path: Path) -> pd.DataFrame:
     suffix = path.suffix.lower()
     if suffix == ".csv":
-        return pd.read_csv(path)
+        frame = pd.read_csv(path, sep=_delimiter(path), encoding="utf-8-sig", skipinitialspace=True)
+        trailing = [c for c in frame.columns if str(c).startswith("Unnamed:") and frame[c].isna().all()]
+        return frame.drop(columns=trailing)
     if suffix == ".parquet":
         return pd.read_parquet(path)
     raise ValueError(f"cannot import {path.name}: use a .csv or .parquet file")
+
+
+def _delimiter(path: Path) -> str:
+    """The delimiter of the header line (a comma when the line has none of :data:`_DELIMITERS`)."""
+    with path.open(encoding="utf-8-sig", newline="") as f:
+        header = f.readline()
+    try:
+        return csv.Sniffer().sniff(header, delimiters=_DELIMITERS).delimiter
+    except csv.Error:
+        return ","
 
 
 def _convert(raw: pd.DataFrame, ignore_unknown: bool) -> tuple[dict[str, Any], dict[str, str], list[str]]:

@@ -6,10 +6,13 @@ Entities (timelines ``step`` and ``sim_time``):
   (:mod:`~scaletwin_envs.recording.rerun_scene`); ``/world/pile``: the pile surface whenever it changes;
   ``/world/bucket_load``: the load as a sphere of its volume, labelled with its mass.
 * ``/signals/<name>``: every signal (SI; the unit is in the series name), one sample per step;
-  ``/signals/groups/<name>``: the dimensionless groups of :mod:`~scaletwin_envs.recording.groups`.
+  ``/signals/groups/<name>``: the dimensionless groups of :mod:`~scaletwin_envs.recording.groups`;
+  ``/signals/route2_minus_route1/<name>``: for each force obtained by both routes, route 2 − route 1 (N), what a
+  reviewer checks (the two routes agree to ~1e-8 of the weight, so their own lines lie on top of each other).
 * ``/phases``: a ``TextLog`` annotation at every dig-phase change; ``/phase``: the same as ``StateChange``.
 
-The blueprint (3D view, phase timeline and log, tabs of time-series views) is stored in every saved file.
+The blueprint (3D view, phase timeline and log, tabs of time-series views, one plot per unit within a tab so no
+axis mixes units) is stored in every saved file.
 """
 
 from __future__ import annotations
@@ -34,6 +37,9 @@ from scaletwin_envs.signal_units import SIGNAL_UNITS
 
 APP_ID = "scaletwin"
 SIGNALS_PATH, GROUPS_PATH, PHASE_PATH, PHASE_LOG_PATH = "/signals", "/signals/groups", "/phase", "/phases"
+RESIDUALS_PATH = "/signals/route2_minus_route1"
+#: Forces obtained by both routes: route 1 name → route 2 name (their difference is logged under RESIDUALS_PATH).
+TWO_ROUTE_FORCES = {n: f"{n}_route2" for n in ("F21", "F31", "Pf_lift", "Pf_tilt")}
 #: The pile is logged again when its surface moved by more than this fraction of its height.
 PILE_TOLERANCE = 0.01
 #: Time-series tabs of the default layout: title → signals.
@@ -47,10 +53,31 @@ SIGNAL_PANELS: dict[str, tuple[str, ...]] = {
 }
 
 
+def panel_plots(units: Mapping[str, str] = SIGNAL_UNITS) -> dict[str, list[tuple[str, str, tuple[str, ...]]]]:
+    """The plots of each tab: (plot name, unit, entity paths), one plot per unit, in the order of first use.
+
+    A tab of :data:`SIGNAL_PANELS` whose signals share a unit is one plot; otherwise it is split by unit, so a
+    pressure never flattens a stroke on a shared axis. The force tabs get a second plot of route 2 − route 1."""
+    out: dict[str, list[tuple[str, str, tuple[str, ...]]]] = {}
+    for title, names in SIGNAL_PANELS.items():
+        by_unit: dict[str, list[str]] = {}
+        for n in names:
+            by_unit.setdefault(units.get(n, "?"), []).append(f"{SIGNALS_PATH}/{n}")
+        plots = [(title if len(by_unit) == 1 else f"{title} [{unit}]", unit, tuple(paths))
+                 for unit, paths in by_unit.items()]
+        residuals = tuple(f"{RESIDUALS_PATH}/{n}" for n in names if n in TWO_ROUTE_FORCES)
+        if residuals:
+            plots.append((f"{title}: route 2 − route 1 [N]", "N", residuals))
+        out[title] = plots
+    return out
+
+
 def blueprint() -> rrb.Blueprint:
-    """Default layout: the 3D scene and phases on the left, tabs of signal plots on the right."""
-    tabs = [rrb.TimeSeriesView(origin=SIGNALS_PATH, contents=[f"{SIGNALS_PATH}/{n}" for n in names], name=title)
-            for title, names in SIGNAL_PANELS.items()]
+    """Default layout: the 3D scene and phases on the left, tabs of signal plots (one per unit) on the right."""
+    tabs: list[Any] = []
+    for title, plots in panel_plots().items():
+        views = [rrb.TimeSeriesView(origin=SIGNALS_PATH, contents=list(paths), name=name) for name, _, paths in plots]
+        tabs.append(views[0] if len(views) == 1 else rrb.Vertical(*views, name=title))
     tabs.append(rrb.TimeSeriesView(origin=GROUPS_PATH, name="Dimensionless groups"))
     left = rrb.Vertical(rrb.Spatial3DView(origin="/world", name="Loader"),
                         rrb.StateTimelineView(origin=PHASE_PATH, name="Dig phase"),
@@ -83,6 +110,15 @@ def time_indexes(steps: Iterable[int], times: Iterable[float]) -> list[rr.TimeCo
             rr.TimeColumn("sim_time", duration=np.asarray(list(times), dtype=np.float64))]
 
 
+def route_residuals(signals: Mapping[str, Any]) -> dict[str, tuple[Any, Any]]:
+    """(route 1, route 2) values of every force present by both routes (a force NaN throughout is left out)."""
+    out = {}
+    for name, name2 in TWO_ROUTE_FORCES.items():
+        if name in signals and name2 in signals and not np.all(np.isnan(np.asarray(signals[name2], float))):
+            out[name] = (signals[name], signals[name2])
+    return out
+
+
 class SignalSender:
     """Sends signal, group and phase columns; styles each series once (static ``SeriesLines``)."""
 
@@ -99,6 +135,10 @@ class SignalSender:
             self._series(f"{SIGNALS_PATH}/{name}", f"{name} [{self.units.get(name, '?')}]", idx, values)
         for name, values in dimensionless_groups(signals, self.length).items():
             self._series(f"{GROUPS_PATH}/{name}", GROUPS[name][0], idx, np.broadcast_to(values, steps.shape))
+        for name, (route1, route2) in route_residuals(signals).items():
+            unit = self.units.get(name, "N")
+            self._series(f"{RESIDUALS_PATH}/{name}", f"{name} route 2 − route 1 [{unit}]", idx,
+                         np.asarray(route2, float) - np.asarray(route1, float))
         if phases:
             self._send_phases(steps, times, phases)
 

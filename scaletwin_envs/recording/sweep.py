@@ -2,9 +2,14 @@
 
 Each episode is an :class:`EpisodeTask`, named by a stable hash of its parameters (``ep-<hash>.parquet``).
 Episodes run through the executor seam (:func:`scaletwin_envs.parallel.make_executor`: local processes by
-default); each worker writes its own file atomically, so an interrupted sweep loses no finished episode and
+default, or Ray); each worker writes its own file atomically, so an interrupted sweep loses no finished episode and
 leaves no partial file, and a rerun skips every episode whose file exists. ``manifest.json`` lists the sweep,
 the versions and every episode's parameters and status.
+
+The output folder is a local path or a filesystem URI (:mod:`scaletwin_envs.recording.atomic`: ``file://``,
+``s3://bucket/prefix``, any pyarrow or fsspec filesystem). Workers write to it directly, so the workers of a
+multi-node Ray cluster need no shared disk when it is a URI of shared storage; with a local path on such a cluster
+each worker writes to its own node's disk, which the sweep detects and reports as failed episodes.
 """
 
 from __future__ import annotations
@@ -15,6 +20,7 @@ import importlib
 import itertools
 import json
 import time
+import warnings
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -22,14 +28,28 @@ from typing import Any
 
 import gymnasium as gym
 import pandas as pd
+import pyarrow.fs as pafs
+import pyarrow.parquet as pq
 from tqdm.auto import tqdm
 
 import scaletwin_envs
 from scaletwin_envs.parallel import Executor, make_executor
 from scaletwin_envs.policies import ScriptedDigPolicy
-from scaletwin_envs.recording.atomic import write_text_atomic
+from scaletwin_envs.recording.atomic import (
+    Location,
+    atomic_output,
+    exists,
+    is_local,
+    is_uri,
+    join,
+    list_files,
+    make_dirs,
+    read_bytes,
+    resolve,
+    write_text_atomic,
+)
 from scaletwin_envs.recording.recorder import record_episode
-from scaletwin_envs.recording.recording import read_recording
+from scaletwin_envs.recording.recording import Recording, read_recording, recording_from_arrow
 from scaletwin_envs.recording.schema import SCHEMA_VERSION
 from scaletwin_envs.specs.loader import LoaderSpec
 
@@ -136,12 +156,13 @@ class SweepSpec:
 def run_task(job: tuple[EpisodeTask, str]) -> dict[str, Any]:
     """Record one episode into ``<out_dir>/<task.filename>`` (atomic); returns its summary.
 
-    Errors are returned (``status="failed"``), not raised, so one bad episode does not stop a sweep.
+    ``out_dir`` is an absolute path or a filesystem URI (see the module docstring). Errors are returned
+    (``status="failed"``), not raised, so one bad episode does not stop a sweep.
     """
     task, out_dir = job
-    path = Path(out_dir) / task.filename
+    location = join(out_dir, task.filename)
     summary: dict[str, Any] = {"key": task.key(), "file": task.filename}
-    if path.exists():
+    if exists(location):
         return {**summary, "status": "done"}
     start = time.perf_counter()
     try:
@@ -153,7 +174,7 @@ def run_task(job: tuple[EpisodeTask, str]) -> dict[str, Any]:
             env.close()
         extra = {**rec.provenance.extra, "sweep_task": {**task.params(), "key": task.key()}}
         rec.provenance = dataclasses.replace(rec.provenance, extra=extra)
-        rec.to_parquet(path)
+        write_recording(rec, location)
     except Exception as exc:  # reported in the manifest; the file is absent, so a rerun retries it
         return {**summary, "status": "failed", "error": f"{type(exc).__name__}: {exc}"}
     last = rec.data.iloc[-1] if len(rec) else {}
@@ -162,11 +183,36 @@ def run_task(job: tuple[EpisodeTask, str]) -> dict[str, Any]:
             "sim_error": rec.provenance.extra.get("sim_error")}
 
 
+def write_recording(rec: Recording, location: Location) -> None:
+    """Write ``rec`` as Parquet to a path or filesystem URI, atomically (locally :meth:`Recording.to_parquet`)."""
+    fs, path = resolve(location)
+    if isinstance(fs, pafs.LocalFileSystem):
+        rec.to_parquet(path)
+        return
+    with atomic_output(location) as f:
+        pq.write_table(rec.to_arrow(), f, compression="zstd")
+
+
+def read_recording_at(location: Location) -> Recording:
+    """:func:`read_recording` of a path or filesystem URI.
+
+    Raises:
+        FileNotFoundError: no such file.  ValueError: not a scaletwin recording (see :func:`read_recording`).
+    """
+    fs, path = resolve(location)
+    if isinstance(fs, pafs.LocalFileSystem):
+        return read_recording(path)
+    if not exists(location):
+        raise FileNotFoundError(f"no recording at {location}")
+    return recording_from_arrow(pq.read_table(path, filesystem=fs), str(location))
+
+
 @dataclass
 class SweepResult:
-    """What a sweep did: episodes run now, skipped (already on disk) and failed, and the manifest."""
+    """What a sweep did: episodes run now (failed ones included), skipped (already present) and failed, and the
+    manifest. ``out_dir`` is a :class:`Path` for a local folder, the URI otherwise."""
 
-    out_dir: Path
+    out_dir: Path | str
     ran: int
     skipped: int
     failed: int
@@ -174,66 +220,104 @@ class SweepResult:
     manifest: dict[str, Any]
 
 
-def run_sweep(spec: SweepSpec, out_dir: str | Path, executor: str | int | Executor | None = None,
+def run_sweep(spec: SweepSpec, out_dir: Location, executor: str | int | Executor | None = None,
               progress: bool = True) -> SweepResult:
     """Run every episode of ``spec`` whose file is not in ``out_dir`` yet.
 
     Args:
-        spec: the grid.  out_dir: dataset folder (created).
+        spec: the grid.
+        out_dir: dataset folder (created): a local path or a filesystem URI such as ``s3://bucket/run1`` that every
+            worker can write to (see the module docstring).
         executor: see :func:`make_executor` (None: local processes on all cores, or serial for at most
             :data:`SERIAL_MAX` episodes, where process start-up would cost more than it saves).
         progress: show a tqdm bar.
+
+    An interrupt (Ctrl-C) cancels the episodes not finished, keeps every finished one (its file, and its entry in
+    ``manifest.json``) and raises ``KeyboardInterrupt``; a rerun records only what is missing.
     """
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    out = _folder(out_dir)
+    make_dirs(out)
     tasks = spec.tasks()
     manifest = _new_manifest(spec, tasks, out)
     todo = [t for t in tasks if manifest["episodes"][t.key()]["status"] != "done"]
     skipped, failed, start = len(tasks) - len(todo), 0, time.perf_counter()
     _write_manifest(out, manifest)
+    if executor is None and len(todo) <= SERIAL_MAX:
+        executor = "serial"  # starting processes costs seconds, more than a few episodes
+    ex = make_executor(executor)
+    if todo and is_local(out) and _multi_node(ex):
+        warnings.warn(f"{out} is a local path but the executor spans several nodes: each worker writes to its own "
+                      "node's disk unless the path is shared; give a URI (e.g. s3://bucket/prefix) instead",
+                      stacklevel=2)
     bar = tqdm(total=len(tasks), initial=skipped, desc="episodes", unit="ep", disable=not progress)
     written = time.monotonic()
     try:
-        if executor is None and len(todo) <= SERIAL_MAX:
-            executor = "serial"  # starting processes costs seconds, more than a few episodes
-        for _, summary in make_executor(executor).map_unordered(run_task, [(t, str(out)) for t in todo]):
+        for _, summary in ex.map_unordered(run_task, [(t, str(out)) for t in todo]):
             manifest["episodes"][summary["key"]].update(summary)
             failed += summary["status"] == "failed"
             bar.update(1)
             if time.monotonic() - written >= MANIFEST_INTERVAL:  # the files are the truth; this is the summary
                 _write_manifest(out, manifest)
                 written = time.monotonic()
+        failed += _check_written(out, manifest, todo)
     finally:
         bar.close()
         _write_manifest(out, manifest)
-    return SweepResult(out, len(todo), skipped, failed, time.perf_counter() - start, manifest)
+    return SweepResult(Path(out) if not is_uri(out) else out, len(todo), skipped, failed,
+                       time.perf_counter() - start, manifest)
 
 
-def _new_manifest(spec: SweepSpec, tasks: list[EpisodeTask], out: Path) -> dict[str, Any]:
+def _folder(out_dir: Location) -> str:
+    """A URI as given; a local path made absolute (workers may run in another working directory)."""
+    return str(out_dir) if is_uri(out_dir) else str(Path(out_dir).absolute())
+
+
+def _multi_node(executor: Executor) -> bool:
+    check = getattr(executor, "multi_node", None)
+    return bool(check()) if callable(check) else False
+
+
+def _check_written(out: str, manifest: dict[str, Any], todo: list[EpisodeTask]) -> int:
+    """Mark episodes a worker reported done but whose file this process cannot see (written to another node's
+    disk) as failed; returns how many."""
+    present = set(list_files(out, "ep-", ".parquet"))
+    lost = 0
+    for t in todo:
+        entry = manifest["episodes"][t.key()]
+        if entry["status"] == "done" and t.filename not in present:
+            entry.update(status="failed", error=f"the worker reported {t.filename} written, but it is not in {out} "
+                                                "(a local path on another node?); use a URI every node can reach")
+            lost += 1
+    return lost
+
+
+def _new_manifest(spec: SweepSpec, tasks: list[EpisodeTask], out: str) -> dict[str, Any]:
     old = _read_manifest(out).get("episodes", {})
+    present = set(list_files(out, "ep-", ".parquet"))
     episodes = {}
     for t in tasks:
         entry = {**t.params(), "file": t.filename, "status": "pending"}
-        if (out / t.filename).exists():
+        if t.filename in present:
             entry = {**entry, **old.get(t.key(), {}), "status": "done"}
         episodes[t.key()] = entry
     return {"format": "scaletwin.dataset", "schema_version": SCHEMA_VERSION,
             "package_version": scaletwin_envs.__version__, "spec": spec.to_dict(), "episodes": episodes}
 
 
-def _read_manifest(out: Path) -> dict[str, Any]:
+def _read_manifest(out: str) -> dict[str, Any]:
     try:
-        return json.loads((out / MANIFEST).read_text())
-    except (FileNotFoundError, json.JSONDecodeError):
+        return json.loads(read_bytes(join(out, MANIFEST)))
+    except (FileNotFoundError, json.JSONDecodeError, UnicodeDecodeError):
         return {}
 
 
-def _write_manifest(out: Path, manifest: dict[str, Any]) -> None:
-    write_text_atomic(out / MANIFEST, json.dumps(manifest, indent=1, sort_keys=True, default=str))
+def _write_manifest(out: str, manifest: dict[str, Any]) -> None:
+    write_text_atomic(join(out, MANIFEST), json.dumps(manifest, indent=1, sort_keys=True, default=str))
 
 
-def load_dataset(out_dir: str | Path) -> pd.DataFrame:
-    """All episodes of a dataset folder in one table (files in name order, rows in step order).
+def load_dataset(out_dir: Location) -> pd.DataFrame:
+    """All episodes of a dataset folder (a path or filesystem URI) in one table (files in name order, rows in step
+    order).
 
     Adds ``episode`` (the task hash, or the file stem), ``machine`` (spec name), ``soil``, ``seed``,
     ``pile_distance`` and ``pile_height`` in front of the recording columns. ``attrs["units"]`` holds the unit
@@ -242,14 +326,15 @@ def load_dataset(out_dir: str | Path) -> pd.DataFrame:
     Raises:
         FileNotFoundError: the folder holds no ``ep-*.parquet`` file.
     """
-    files = sorted(Path(out_dir).glob("ep-*.parquet"))
+    files = list_files(out_dir, "ep-", ".parquet")
     if not files:
         raise FileNotFoundError(f"no episodes (ep-*.parquet) in {out_dir}")
     frames, units = [], {}
-    for f in files:
-        rec = read_recording(f)
+    for name in files:
+        rec = read_recording_at(join(out_dir, name))
         p = rec.provenance
-        meta = {"episode": p.extra.get("sweep_task", {}).get("key", f.stem), "machine": (p.machine or {}).get("name"),
+        stem = name.removesuffix(".parquet")
+        meta = {"episode": p.extra.get("sweep_task", {}).get("key", stem), "machine": (p.machine or {}).get("name"),
                 "soil": (p.soil or {}).get("name"), "seed": p.seed, "pile_distance": p.env_kwargs.get("pile_distance"),
                 "pile_height": p.env_kwargs.get("pile_height")}
         frames.append(rec.data.assign(**meta)[[*meta, *rec.data.columns]])

@@ -45,10 +45,11 @@ def planted(twin: TwinSpec) -> Callable[[Sequence[Effect], float], Synthetic]:
 def diagnosed(twin: TwinSpec, planted) -> Callable[..., Diagnosis]:
     cache: dict[tuple, Diagnosis] = {}
 
-    def get(effects: Sequence[Effect], candidates: tuple[str, ...] | None = None) -> Diagnosis:
-        key = (tuple(effects), candidates)
+    def get(effects: Sequence[Effect], candidates: tuple[str, ...] | None = None, gn_iterations: int = 0
+            ) -> Diagnosis:
+        key = (tuple(effects), candidates, gn_iterations)
         if key not in cache:
-            opts = dataclasses.replace(FAST, candidates=candidates)
+            opts = dataclasses.replace(FAST, candidates=candidates, gn_iterations=gn_iterations)
             cache[key] = diagnose(planted(effects).noisy, twin, options=opts)
         return cache[key]
 

@@ -32,7 +32,9 @@ def test_corrupted_file(tmp_path) -> None:
 
 
 @pytest.mark.parametrize(("edit", "message"), [
-    (lambda df: df.assign(cmd_lift=np.where(df.index == 5, np.nan, df["cmd_lift"])), "non-finite"),
+    (lambda df: df.assign(cmd_lift=np.where((df.index >= 5) & (df.index < 15), np.nan, df["cmd_lift"])),
+     r"cmd_lift is missing from t = 0\.6 s"),
+    (lambda df: df.assign(cmd_lift=np.where(df.index == 5, np.inf, df["cmd_lift"])), "infinite"),
     (lambda df: df.assign(cmd_drive=df["cmd_drive"] * 40.0), "normalised"),
     (lambda df: df.assign(time=df["time"].to_numpy()[::-1].copy()), "does not increase"),
     (lambda df: df.assign(time=df["time"] ** 1.5), "uniformly"),
@@ -44,6 +46,13 @@ def test_malformed_recordings(recording, edit, message: str) -> None:
     units = {c: u for c, u in rec.units.items() if c in data.columns}
     with pytest.raises(RecordingError, match=message):
         from_recording(type(rec)(data, units, rec.provenance))
+
+
+def test_single_missing_command_is_held_and_reported(recording) -> None:
+    data = recording.data.assign(cmd_lift=np.where(recording.data.index == 5, np.nan, recording.data["cmd_lift"]))
+    ep = from_recording(type(recording)(data, recording.units, recording.provenance))
+    assert ep.commands[5, 0] == recording.data["cmd_lift"].iloc[4]
+    assert [g[0] for g in ep.input_report.gaps] == ["cmd_lift"]
 
 
 def test_csv_without_commands(recording, tmp_path) -> None:

@@ -35,7 +35,7 @@ def test_gauss_newton_pulls_a_wrong_start_back_to_the_planted_value(name: str, t
     runner = make_runner(twin, 1)
     try:
         ctx = Context.build(real, CachedReplays(runner, real.commands, real.time))
-        use(ctx, calibrate(ctx, NullSpec(runs=3)))
+        use(ctx, calibrate(ctx, NullSpec(runs=3), [start]))  # as the pipeline: the noise left by the named effect
         cost_at_start = ctx.cost(ctx.simulate([start]))
         result = fit(ctx, [start], seed=0, iterations=2)
     finally:

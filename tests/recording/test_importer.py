@@ -80,6 +80,28 @@ def test_missing_columns_are_listed_with_expected_units(recorded, tmp_path):
     assert "required: time [s], cmd_lift [1]" in msg and "Pf_lift [N]" in msg
 
 
+def test_required_columns_can_be_relaxed(recorded, tmp_path):
+    """What a user needs decides what is required: the discrepancy tool needs time and the commands only."""
+    rig_frame(recorded(), ["time", "cmd_lift", "cmd_tilt", "cmd_drive", "F21"]).to_csv(tmp_path / "few.csv",
+                                                                                      index=False)
+    with pytest.raises(ValueError, match="missing required columns: F31"):
+        import_recording(tmp_path / "few.csv")
+    imported = import_recording(tmp_path / "few.csv", required=("time", "cmd_lift", "cmd_tilt", "cmd_drive"))
+    assert list(imported.data.columns) == ["step", "time", "cmd_lift", "cmd_tilt", "cmd_drive", "F21"]
+
+
+@pytest.mark.parametrize("sep", [";", "\t"])
+def test_data_logger_csv_dialects(recorded, tmp_path, sep: str):
+    """Semicolon or tab delimiters, a byte-order mark, spaces after delimiters and a trailing delimiter."""
+    rec = recorded()
+    frame = rig_frame(rec, REQUIRED_IMPORT)
+    text = frame.to_csv(index=False, sep=sep).replace(sep, sep + " ").replace("\n", sep + "\n")
+    (tmp_path / "logger.csv").write_bytes(b"\xef\xbb\xbf" + text.encode())
+    imported = import_recording(tmp_path / "logger.csv")
+    assert list(imported.data.columns) == ["step", *REQUIRED_IMPORT]
+    np.testing.assert_allclose(imported.signal("F21"), rec.signal("F21"), rtol=1e-9)
+
+
 @pytest.mark.parametrize(("header", "expected"), [
     ("R_x [kPa]", "unit 'kPa' is not convertible to 'N'"),
     ("travel_speed [blorp]", "unit 'blorp' is not convertible to 'm/s'"),

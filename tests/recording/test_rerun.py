@@ -155,3 +155,72 @@ def test_live_logger_to_memory(recorded):
     episode = run_episode(env, ScriptedDigPolicy(), seed=0, on_step=logger)
     logger.close()
     assert len(episode.infos) == len(recorded())
+
+
+def _stored_views(path) -> tuple[dict[str, tuple[str, list[str]]], dict[str, tuple[str, list[str]]]]:
+    """From the blueprint stored in an .rrd: views (id → class, name, query) and containers (id → name, contents)."""
+    reader = RrdReader(path)
+    views: dict[str, dict] = defaultdict(dict)
+    containers: dict[str, tuple[str, list[str]]] = {}
+    for chunk in reader.stream(store=reader.blueprints()[0]).collect().stream():
+        batch, entity = chunk.to_record_batch(), chunk.entity_path
+        cols = {n: batch.column(n)[0].as_py() for n in batch.schema.names if ":" in n}
+        if entity.startswith("/container/") and "ContainerBlueprint:display_name" in cols:
+            containers[entity.removeprefix("/")] = (cols["ContainerBlueprint:display_name"][0],
+                                                    cols["ContainerBlueprint:contents"])
+        elif entity.startswith("/view/"):
+            view = "/".join(entity.split("/")[1:3])
+            if "ViewContents:query" in cols:
+                views[view]["query"] = cols["ViewContents:query"]
+            if "ViewBlueprint:display_name" in cols:
+                views[view]["class"] = cols["ViewBlueprint:class_identifier"][0]
+                views[view]["name"] = cols["ViewBlueprint:display_name"][0]
+    return views, containers
+
+
+def _unit(entity: str) -> str:
+    from scaletwin_envs.recording.rerun_log import RESIDUALS_PATH
+    from scaletwin_envs.signal_units import SIGNAL_UNITS
+
+    name = entity.rsplit("/", 1)[1]
+    return "N" if entity.startswith(RESIDUALS_PATH) else SIGNAL_UNITS[name]
+
+
+def test_stored_layout_puts_one_unit_on_each_plot_axis(episode_rrd):
+    """Every time-series plot of the stored layout holds series of a single unit ("Cylinders" put Pa beside m and
+    m/s, "Bucket and load" kg beside m, so the small series lay flat at zero); every series is still plotted."""
+    from scaletwin_envs.recording.rerun_log import SIGNAL_PANELS
+
+    path, _ = episode_rrd
+    views, containers = _stored_views(path)
+    plotted: set[str] = set()
+    series_views = [v for v in views.values() if v.get("class") == "TimeSeries" and v["query"] != ["$origin/**"]]
+    for v in series_views:
+        assert len({_unit(e) for e in v["query"]}) == 1, (v["name"], v["query"])
+        plotted |= {e.rsplit("/", 1)[1] for e in v["query"] if not e.startswith("/signals/route2")}
+    assert plotted == {n for names in SIGNAL_PANELS.values() for n in names}
+    by_name = {name: [views[c]["name"] for c in contents] for name, contents in containers.values()}
+    assert by_name["Cylinders"] == ["Cylinders [m]", "Cylinders [m/s]", "Cylinders [Pa]"]
+    assert by_name["Bucket and load"] == ["Bucket and load [kg]", "Bucket and load [m]"]
+
+
+def test_route_residual_series_is_route2_minus_route1(episode_rrd):
+    """The pin and cylinder forces by both routes get a residual plot: route 2 − route 1 (N), sample by sample."""
+    path, rec = episode_rrd
+    series: dict[str, np.ndarray] = {}
+    for chunk in RrdReader(path).stream().collect().stream():
+        if chunk.entity_path.startswith("/signals/route2_minus_route1/") and not chunk.is_static:
+            batch = chunk.to_record_batch()
+            steps = np.asarray(batch.column("step").to_pylist())
+            values = np.array([v[0] for v in batch.column("Scalars:scalars").to_pylist()])
+            name = chunk.entity_path.rsplit("/", 1)[1]
+            series[name] = np.concatenate([series.get(name, np.empty(0)), values[np.argsort(steps)]])
+    assert set(series) == {"F21", "F31", "Pf_lift", "Pf_tilt"}
+    for name, values in series.items():
+        expected = rec.data[f"{name}_route2"].to_numpy() - rec.data[name].to_numpy()
+        np.testing.assert_allclose(values, expected, rtol=0, atol=1e-9 * float(np.abs(rec.data[name]).max()))
+        assert np.abs(values).max() < 1e-3 * float(np.abs(rec.data[name]).max())  # the routes agree ...
+        assert np.abs(values).max() > 0.0  # ... yet the residual is a real series, not a copy of zeros
+    views, containers = _stored_views(path)
+    pin = next(contents for name, contents in containers.values() if name == "Pin forces")
+    assert views[pin[1]]["query"] == ["/signals/route2_minus_route1/F21", "/signals/route2_minus_route1/F31"]

@@ -3,15 +3,20 @@
 from __future__ import annotations
 
 import json
+import sys
+import time
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
+import pandas as pd
 import pytest
 
+import scaletwin_envs.parallel as parallel
 from scaletwin.cli import main
-from scaletwin_envs.parallel import LocalProcessExecutor
+from scaletwin_envs.parallel import LocalProcessExecutor, map_in_order
 from scaletwin_envs.recording import SweepSpec, load_dataset, read_recording, run_sweep
 from scaletwin_envs.recording.sweep import EpisodeTask, make_policy, policy_name
+from tests.parallel_tasks import interrupt_main_when, marked_sleep
 
 SPEC = SweepSpec(scales=("mini", 0.2), soils=("gravel",), pile_distances=(0.4,), pile_heights=(0.6, 0.7),
                  seeds=(0,), env_kwargs={"max_episode_time": 30.0})
@@ -113,3 +118,109 @@ def test_dataset_cli(tmp_path, capsys):
     assert main(["dataset", str(out), "--soils", "lava", "--workers", "1", "--no-progress"]) == 1
     with pytest.raises(FileNotFoundError):
         load_dataset(tmp_path / "empty")
+
+
+
+
+def test_sweep_to_file_uri_and_fsspec_uri_matches_local_path(tmp_path):
+    """The same sweep written to a path, a file:// URI and an fsspec memory:// URI: same files, same table."""
+    fsspec = pytest.importorskip("fsspec")
+    spec = SweepSpec(seeds=(0, 1), env_kwargs={"max_episode_time": 30.0})
+    run_sweep(spec, tmp_path / "path", executor="serial", progress=False)
+    uri = (tmp_path / "uri").as_uri()
+    assert uri.startswith("file:///")
+    result = run_sweep(spec, uri, executor="serial", progress=False)
+    assert result.out_dir == uri and (result.ran, result.failed) == (2, 0)
+    assert snapshot(tmp_path / "uri") == snapshot(tmp_path / "path")
+    expected = load_dataset(tmp_path / "path")
+    pd.testing.assert_frame_equal(load_dataset(uri), expected)
+
+    memory = fsspec.filesystem("memory")
+    try:
+        result = run_sweep(spec, "memory://scaletwin-sweep-test/ds", executor="serial", progress=False)
+        assert (result.ran, result.failed, result.out_dir) == (2, 0, "memory://scaletwin-sweep-test/ds")
+        names = sorted(p.rsplit("/", 1)[-1] for p in memory.ls("/scaletwin-sweep-test/ds", detail=False))
+        assert names == sorted([*snapshot(tmp_path / "path"), "manifest.json"])  # no temporary object left
+        pd.testing.assert_frame_equal(load_dataset("memory://scaletwin-sweep-test/ds"), expected)
+        again = run_sweep(spec, "memory://scaletwin-sweep-test/ds", executor="serial", progress=False)
+        assert (again.ran, again.skipped) == (0, 2)
+    finally:
+        memory.rm("/scaletwin-sweep-test", recursive=True)
+    with pytest.raises(ValueError, match="unsupported filesystem URI 'nosuchscheme://x'"):
+        run_sweep(spec, "nosuchscheme://x", executor="serial", progress=False)
+
+
+def test_ctrl_c_during_a_local_process_sweep_keeps_finished_episodes_and_stops_the_rest(tmp_path):
+    """SIGINT while two worker processes record: the sweep stops at once (queued episodes never start, running ones
+    are terminated), every episode finished so far stays, and a rerun records only the rest."""
+    spec = SweepSpec(seeds=tuple(range(5)), policy="tests.parallel_tasks:slow_scripted",
+                     policy_kwargs={"delay": 0.005}, env_kwargs={"max_episode_time": 30.0})
+    interrupt_main_when(lambda: any(tmp_path.glob("ep-*.parquet")))
+    with pytest.raises(KeyboardInterrupt):
+        run_sweep(spec, tmp_path, executor=LocalProcessExecutor(2), progress=False)
+    stopped = time.monotonic()
+    first = snapshot(tmp_path)
+    assert 1 <= len(first) < 5
+    for name in first:
+        assert read_recording(tmp_path / name).provenance.extra["sweep_task"]["key"] == name[3:-8]
+    manifest = json.loads((tmp_path / "manifest.json").read_text())
+    done = {e["file"] for e in manifest["episodes"].values() if e["status"] == "done"}
+    assert done <= set(first)  # every episode reported finished is on disk (one whose file is written but whose
+    # result had not reached the driver when the interrupt came is on disk, not yet in the manifest: the rerun skips it)
+    time.sleep(max(0.0, stopped + 1.5 - time.monotonic()))  # longer than one episode: nothing still running
+    assert snapshot(tmp_path) == first
+
+    result = run_sweep(spec, tmp_path, executor="serial", progress=False)
+    assert (result.ran, result.skipped, result.failed) == (5 - len(first), len(first), 0)
+    second = snapshot(tmp_path)
+    assert len(second) == 5 and all(second[name] == data for name, data in first.items())
+
+
+def test_local_processes_yield_results_finished_when_interrupted(tmp_path, monkeypatch):
+    """Ctrl-C arriving while results are waited for: the ones already finished still come out, then the interrupt."""
+    real_wait = parallel.futures_wait
+    calls = []
+
+    def interrupted_wait(pending, timeout=None, return_when=None):
+        calls.append(len(pending))
+        if len(calls) == 1:
+            real_wait(pending)  # every task finishes while we "wait" ...
+            raise KeyboardInterrupt  # ... and the interrupt arrives before they are handed out
+        return real_wait(pending, timeout, return_when)
+
+    monkeypatch.setattr(parallel, "futures_wait", interrupted_wait)
+    got = []
+    with pytest.raises(KeyboardInterrupt):
+        for i, result in LocalProcessExecutor(2).map_unordered(marked_sleep, [(str(tmp_path), i, 0.0)
+                                                                               for i in range(3)]):
+            got.append((i, result))
+    assert got == [(0, 0), (1, 1), (2, 2)] and calls == [3]
+
+
+def test_map_in_order_and_cancel_on_error(tmp_path):
+    jobs = [(str(tmp_path), i, 0.3 * (2 - i)) for i in range(3)]  # the last finishes first
+    assert map_in_order(marked_sleep, jobs, LocalProcessExecutor(2)) == [0, 1, 2]
+    assert map_in_order(marked_sleep, jobs[:1]) == [0]
+    with pytest.raises(TypeError):
+        map_in_order(marked_sleep, [(str(tmp_path), 9, "not a number"), *[(str(tmp_path), 10 + i, 5.0)
+                                                                          for i in range(3)]], 2)
+    time.sleep(0.2)
+    assert not (tmp_path / "start-12").exists()  # queued behind the error: never started
+    assert not (tmp_path / "end-10").exists() and not (tmp_path / "end-11").exists()
+
+
+def test_executor_options_of_the_commands(tmp_path, capsys, monkeypatch):
+    """Contradictory executor options fail at once with exit code 2; without Ray installed, --executor ray says what
+    to install instead of a traceback."""
+    cases = [(["dataset", str(tmp_path), "--executor", "serial", "--workers", "2"], "--workers applies to local"),
+             (["dataset", str(tmp_path), "--ray-cpus", "2"], "--ray-cpus applies to --executor ray only"),
+             (["product-line", str(tmp_path), "--executor", "local", "--ray-address", "auto"], "--ray-address"),
+             (["fit", "--executor", "ray", "--workers", "3"], "--workers applies to local processes only"),
+             (["reproduce", "--executor", "ray", "--ray-cpus", "0"], "--ray-cpus must be > 0")]
+    for argv, message in cases:
+        assert main(argv) == 2, argv
+        assert message in capsys.readouterr().err
+    monkeypatch.setitem(sys.modules, "ray", None)  # as if Ray were not installed
+    assert main(["dataset", str(tmp_path), "--no-progress", "--ray-address", "auto"]) == 2
+    assert 'pip install "scaletwin[ray]"' in capsys.readouterr().err
+    assert not list(tmp_path.iterdir())

@@ -1,0 +1,493 @@
+"""Field-log input: bring a data logger's recording to the twin's control steps, and measure what the logger did.
+
+A field log is sampled at its own rate (50–1000 Hz typically, timestamps slightly jittered), has short dropouts
+(NaN), may lack channels, may be offset in time from the commands and may have gone through a sensor's filter.
+The twin (:mod:`scaletwin_envs.recording.schema`) has one row per control step of length ``dt``: row ``k`` holds
+the command applied over the interval ``(t_k - dt, t_k]`` and the signals read at ``t_k``, the interval's END
+(the env reads its signals after the physics of the step). :func:`prepare_log` matches that:
+
+* signals: a zero-phase (centred, linear-phase) Kaiser FIR low-pass, flat up to the twin's Nyquist frequency
+  ``f_N = 1/(2 dt)`` and :data:`STOP_DB` down from ``2 f_N``, then the filtered log is read at each control time
+  ``t_k`` (cubic interpolation). The twin's signal at ``t_k`` is an instantaneous sample, not an average: its
+  sequence carries everything in ``0..f_N`` (and its own fast dynamics folded onto it), so the filter must leave
+  ``0..f_N`` untouched, or the twin would differ from the log where it is right (a filter flat only to 0.6 f_N
+  changes an upsampled twin recording's accelerations by up to 0.25 of their spread; this one by < 1 %). From
+  ``2 f_N`` on, where most of a fast logger's noise is, nothing folds back; in the transition ``f_N..2 f_N`` a
+  tone is partly attenuated and folds onto ``0..f_N`` as it does in the twin's own samples. The filter is centred
+  so it adds no delay: an average over the control interval would lag by ``dt/2`` and look like a sensor delay
+  to the diagnosis.
+  (``scipy.signal.resample_poly`` would be the same linear-phase FIR for an integer ratio on uniform timestamps;
+  one path for every ratio and for jittered timestamps is used instead.)
+* commands: the twin holds each command for one control step (zero-order hold), so the command of interval ``k``
+  is the time-weighted mean of the logged command over ``(t_k - dt, t_k]``, each logged value taken as held over
+  the logger's interval that ends at its timestamp (the recordings' own convention). For a command that changes
+  on the control grid this is the command itself; for one that changes in between, it is the command of equal
+  integral (equal cylinder travel for a flow-proportional valve).
+* phases (strings): the logged phase nearest to ``t_k``.
+* the control grid starts at the log's first timestamp: that sample stands for the reset state (it is not a row,
+  as in our recordings) and rows are ``t_0 + k dt``, ``k = 1 .. floor((t_last - t_0)/dt)``.
+
+A log slower than the control step is refused (:class:`RecordingError`): its signals would have to be invented
+between samples; compare the twin at the log's times instead (every m-th twin row for an integer ratio m).
+
+NaN gaps are bridged (signals linearly, commands by holding the last value) when the span without data is at most
+:data:`MAX_GAP_STEPS` control steps, and refused otherwise. Everything done is recorded in an :class:`InputReport`.
+
+:func:`estimate_offset`/:func:`shift_signals` find and undo a time offset between the log and the twin's replay;
+:func:`first_order_filter`/:func:`estimate_sensor_tau` model a sensor's first-order low-pass.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from scipy import optimize, signal
+from scipy.interpolate import CubicSpline
+
+from discrepancy.data.channels import COMPARED, RecordingError
+
+if TYPE_CHECKING:
+    from discrepancy.data.episode import EpisodeData
+
+#: A gap is bridged when the straight line (or the held command) spans at most this many control steps: 0.4 s at
+#: ER12's 0.1 s, under half a locate window (10 steps), so a bridged gap can never fill a window by itself, and
+#: short against the cylinders' motions (about one second per stroke segment) so a line follows them closely.
+MAX_GAP_STEPS = 4
+#: Relative mismatch of the log's median step and the control step still taken as the control rate; the same as
+#: ``discrepancy.twin.spec.DT_TOLERANCE``, so what passes here passes the twin's compatibility check.
+RATE_TOLERANCE = 0.02
+#: A timestamp step this many times the median step is a logger dropout (reported, bridged like a NaN gap):
+#: ordinary jitter of a data logger is a few per cent of its step.
+DROPOUT_FACTOR = 1.5
+#: Timestamps whose steps deviate less than this (relative) from the median are uniform: the log is used as is,
+#: not interpolated onto a uniform grid (floating-point rounding of ``k * h`` stays far below it).
+UNIFORM_TOLERANCE = 1e-6
+#: Anti-alias filter: pass band up to this multiple of the twin's Nyquist frequency ``1/(2 dt)`` (all of what the
+#: twin's samples carry, see the module docstring) ...
+PASS_FRACTION = 1.0
+#: ... and stop band from this multiple on, attenuated by STOP_DB: 60 dB (1e-3) puts a folded tone below a typical
+#: sensor's noise (0.1 % of range).
+STOP_FRACTION = 2.0
+STOP_DB = 60.0
+#: Kinematic channels used to estimate a time offset: positions and angles, which the twin gets right up to
+#: smooth errors; forces jump at contact and relief and would make the cross-correlation follow the physics.
+KINEMATIC = ("lift_extension", "tilt_extension", "boom_angle", "bucket_pitch", "x_b", "y_b")
+#: An estimated offset is significant when it is at least this fraction of a control step (smaller shifts change a
+#: sample by less than the interpolation error of the comparison) ...
+MIN_OFFSET_STEPS = 0.25
+#: ... and the aligned residual is at most half the residual without a shift: an offset of the whole log explains
+#: nearly all of the kinematic residual it causes, while a physical discrepancy (a slower cylinder, friction) is
+#: only partly imitated by a shift and must be left to the diagnosis.
+MIN_OFFSET_GAIN = 0.5
+#: Sensor time constants searched (s): 0 to 1 s covers load pins, pressure transducers and inclinometers.
+TAU_MAX = 1.0
+#: A sensor filter is reported (tau > 0) only when it removes at least half of the residual: a filter smooths the
+#: twin's sharp steps and always gains a little against a noisy log or a physical discrepancy (friction smooths
+#: the motion too), while a real sensor filter explains nearly all of the residual it causes.
+MIN_TAU_GAIN = 0.5
+
+
+@dataclass(frozen=True)
+class InputReport:
+    """What was done to a log before the comparison.
+
+    Attributes:
+        original_rate_hz: the log's sampling rate (1 / median timestamp step), Hz.
+        control_dt: the twin's control step the log was prepared for, s (None: taken as it is).
+        resampled: whether the log was resampled to the control steps.
+        filter: the anti-alias filter and the alignment rule, in words (None when not resampled).
+        gaps: bridged gaps ``(channel, t_start, t_end)``: times (s, log clock) of the first and last missing
+            sample; ``channel`` ``"time"`` for a logger dropout (missing rows).
+        channels_missing: compared signals the log does not have (absent or never finite).
+        time_offset: offset between the log's signals and the twin, s (positive: the log lags), once estimated.
+        sensor_tau: a first-order sensor time constant, s, once declared or estimated.
+        warnings: anything else a reader of the report should know.
+    """
+
+    original_rate_hz: float
+    control_dt: float | None = None
+    resampled: bool = False
+    filter: str | None = None
+    gaps: tuple[tuple[str, float, float], ...] = ()
+    channels_missing: tuple[str, ...] = ()
+    time_offset: float | None = None
+    sensor_tau: float | None = None
+    warnings: tuple[str, ...] = ()
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready: numbers as floats, gaps as ``{"channel", "t_start", "t_end"}`` objects."""
+        return {
+            "original_rate_hz": float(self.original_rate_hz),
+            "control_dt": None if self.control_dt is None else float(self.control_dt),
+            "resampled": self.resampled,
+            "filter": self.filter,
+            "gaps": [{"channel": c, "t_start": float(a), "t_end": float(b)} for c, a, b in self.gaps],
+            "channels_missing": list(self.channels_missing),
+            "time_offset": None if self.time_offset is None else float(self.time_offset),
+            "sensor_tau": None if self.sensor_tau is None else float(self.sensor_tau),
+            "warnings": list(self.warnings),
+        }
+
+
+@dataclass(frozen=True)
+class PreparedLog:
+    """A log at the control steps: time (s), commands (steps, 3), SI signals, phases, and the report."""
+
+    time: np.ndarray
+    commands: np.ndarray
+    signals: dict[str, np.ndarray]
+    phases: np.ndarray
+    report: InputReport
+
+
+@dataclass(frozen=True)
+class OffsetEstimate:
+    """A time offset between a log and the twin's replay.
+
+    Attributes:
+        offset: s; positive when the log's signals lag the twin (``real(t) ≈ twin(t - offset)``).
+        significant: whether the offset is worth undoing (:data:`MIN_OFFSET_STEPS`, :data:`MIN_OFFSET_GAIN`).
+        cost_zero, cost: normalised mean squared residual without and with the shift (1 ≈ the twin's variance).
+        channels: the channels used.
+    """
+
+    offset: float
+    significant: bool
+    cost_zero: float
+    cost: float
+    channels: tuple[str, ...] = field(default_factory=tuple)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"offset": float(self.offset), "significant": self.significant, "cost_zero": float(self.cost_zero),
+                "cost": float(self.cost), "channels": list(self.channels)}
+
+
+# -- preparing a log ---------------------------------------------------------------------------------------------
+
+def prepare_log(time: np.ndarray, commands: np.ndarray, signals: Mapping[str, np.ndarray], phases: np.ndarray,
+                control_dt: float | None, name: str = "log") -> PreparedLog:
+    """Bridge short gaps, note missing channels and, for a log faster than ``control_dt``, resample it.
+
+    Args:
+        time: timestamps, s (finite, strictly increasing).
+        commands: (rows, 3) normalised commands, NaN where the logger missed them.
+        signals: SI signals by name (rows,), NaN where missing; never-finite ones count as absent.
+        phases: dig phase per row (strings).
+        control_dt: the twin's control step, s; None takes the log's own step as the control step (no resampling).
+        name: used in messages.
+
+    Raises:
+        RecordingError: a gap too long to bridge (naming the channel, time and length), a log slower than the
+            control step, no compared signal, or too few rows.
+    """
+    time = np.asarray(time, dtype=np.float64)
+    steps = np.diff(time)
+    if len(time) < 2 or np.any(steps <= 0):
+        row = int(np.flatnonzero(steps <= 0)[0]) + 1 if len(time) >= 2 else 0
+        raise RecordingError(f"{name}: time does not increase at row {row}")
+    h = float(np.median(steps))
+    dt = h if control_dt is None else float(control_dt)
+    if not dt > 0:
+        raise RecordingError(f"{name}: the control step must be positive, got {control_dt}")
+    ratio = dt / h
+    if ratio < 1.0 - RATE_TOLERANCE:
+        raise RecordingError(
+            f"{name}: sampled every {h:.4g} s ({1 / h:.4g} Hz), slower than the twin's control step {dt:.4g} s; "
+            "the signals between samples would have to be invented. Log at the control rate or faster")
+    resample = ratio > 1.0 + RATE_TOLERANCE
+    max_span = MAX_GAP_STEPS * dt
+    gaps: list[tuple[str, float, float]] = []
+    warnings: list[str] = []
+    if resample:  # a log kept at its own step is checked for uniform sampling by the caller
+        gaps += _dropouts(time, h, max_span, name)
+    present = {k: np.asarray(v, dtype=np.float64) for k, v in signals.items()}
+    present = {k: v for k, v in present.items() if np.any(np.isfinite(v))}
+    missing = tuple(s for s in COMPARED if s not in present)
+    if not any(s in present for s in COMPARED):
+        raise RecordingError(f"{name}: none of the compared signals {list(COMPARED)} is present and finite")
+    bridged = {}
+    for k, v in present.items():
+        try:
+            bridged[k], found = bridge_gaps(time, v, k, max_span, hold=False, name=name)
+        except RecordingError as exc:
+            if k in COMPARED:
+                raise
+            warnings.append(f"{k} dropped (not compared, only cross-checked): {exc}")
+            continue
+        gaps += found
+    cmds = np.array(commands, dtype=np.float64, copy=True)
+    for i, k in enumerate(("cmd_lift", "cmd_tilt", "cmd_drive")):
+        if not np.any(np.isfinite(cmds[:, i])):
+            raise RecordingError(f"{name}: {k} has no finite value; the twin replays the commands")
+        cmds[:, i], found = bridge_gaps(time, cmds[:, i], k, max_span, hold=True, name=name)
+        gaps += found
+    phases = np.asarray(phases, dtype=object)
+    if not resample:
+        report = InputReport(1.0 / h, control_dt, False, None, tuple(gaps), missing, warnings=tuple(warnings))
+        return PreparedLog(time, cmds, bridged, phases, report)
+    grid = control_grid(time, dt)
+    if len(grid) < 2:
+        raise RecordingError(f"{name}: the log spans {time[-1] - time[0]:.3g} s, less than two control steps")
+    taps, description = antialias_filter(h, dt)
+    out = {k: resample_signal(time, v, grid, dt, taps=taps) for k, v in bridged.items()}
+    if np.ptp(steps) > UNIFORM_TOLERANCE * h:
+        warnings.append(f"timestamps jittered (steps {steps.min():.4g}..{steps.max():.4g} s): interpolated onto a "
+                        f"uniform {h:.4g} s grid before filtering")
+    report = InputReport(1.0 / h, dt, True, description, tuple(gaps), missing, warnings=tuple(warnings))
+    return PreparedLog(grid, resample_commands(time, cmds, grid, dt), out, resample_phases(time, phases, grid),
+                       report)
+
+
+def control_grid(time: np.ndarray, dt: float) -> np.ndarray:
+    """Control times ``t_0 + k dt`` (s), ``k = 1 .. floor((t_last - t_0)/dt)``; ``t_0`` = the first timestamp."""
+    n = math.floor((time[-1] - time[0]) / dt + 1e-9)  # tolerance: a log ending on the grid keeps its last step
+    return time[0] + dt * np.arange(1, n + 1)
+
+
+def antialias_filter(h: float, dt: float) -> tuple[np.ndarray, str]:
+    """Taps of the linear-phase Kaiser FIR low-pass for a log step ``h`` (s) and control step ``dt`` (s), and a
+    description of it for the report."""
+    nyquist = 0.5 / dt
+    f_pass, f_stop, fs = PASS_FRACTION * nyquist, STOP_FRACTION * nyquist, 1.0 / h
+    numtaps, beta = signal.kaiserord(STOP_DB, (f_stop - f_pass) / (0.5 * fs))
+    numtaps |= 1  # odd: the centre tap sits on a sample, so the filter delays nothing
+    taps = signal.firwin(numtaps, 0.5 * (f_pass + f_stop), window=("kaiser", beta), fs=fs)
+    text = (f"zero-phase Kaiser FIR low-pass ({numtaps} taps at {fs:.4g} Hz; pass to {f_pass:.3g} Hz, "
+            f"-{STOP_DB:.0f} dB from {f_stop:.3g} Hz), signals read at the end of each {dt:.4g} s control step; "
+            "commands: time-weighted mean over each control interval; phases: nearest sample")
+    return taps, text
+
+
+def resample_signal(time: np.ndarray, x: np.ndarray, grid: np.ndarray, dt: float,
+                    taps: np.ndarray | None = None) -> np.ndarray:
+    """A finite signal sampled at ``time`` (s, increasing), low-passed and read at the control times ``grid``.
+
+    The log is first put on a uniform grid at its median step (linear interpolation, only when the timestamps
+    are jittered), filtered by :func:`antialias_filter` (centred; beyond the ends the log is reflected oddly through its
+    end samples), then read at ``grid`` by cubic interpolation. Within half a filter length of the log's ends
+    (about 0.35 s at a 0.1 s control step, whatever the log's rate), a smooth signal stays exact, but noise and a
+    tone above the band are attenuated less than inside, down to not at all at the log's last sample (a centred
+    filter has only one side of the data there; a one-sided one would delay). Logs of a dig cycle start and end
+    at rest, where this matters least.
+    """
+    time = np.asarray(time, dtype=np.float64)
+    h = float(np.median(np.diff(time)))
+    fine_t, fine = _uniform(time, np.asarray(x, dtype=np.float64), h)
+    if taps is None:
+        taps, _ = antialias_filter(h, dt)
+    pad = min(len(taps) // 2, len(fine) - 1)
+    # odd reflection through each end sample (scipy's filtfilt padding): keeps the end's level and slope, so a
+    # smooth signal stays exact up to the ends; the price is that the end row is the end sample itself
+    ext = np.concatenate((2 * fine[0] - fine[pad:0:-1], fine, 2 * fine[-1] - fine[-2:-pad - 2:-1]))
+    smooth = signal.fftconvolve(ext, taps, mode="same")[pad:pad + len(fine)]
+    return CubicSpline(fine_t, smooth)(grid)
+
+
+def resample_commands(time: np.ndarray, commands: np.ndarray, grid: np.ndarray, dt: float) -> np.ndarray:
+    """Command of each control interval ``(t_k - dt, t_k]``: the time-weighted mean of the logged commands, each
+    held over the logger's interval ending at its timestamp (the first sample is the reset state's, not used)."""
+    time = np.asarray(time, dtype=np.float64)
+    cmds = np.asarray(commands, dtype=np.float64).reshape(len(time), -1)
+    # running integral of the held command, exact (piecewise linear) for a piecewise-constant command
+    integral = np.vstack((np.zeros((1, cmds.shape[1])), np.cumsum(cmds[1:] * np.diff(time)[:, None], axis=0)))
+    at = np.stack([np.interp(np.concatenate(([grid[0] - dt], grid)), time, integral[:, i])
+                   for i in range(cmds.shape[1])], axis=1)
+    return np.clip(np.diff(at, axis=0) / dt, -1.0, 1.0)  # clip: rounding only, the inputs are within [-1, 1]
+
+
+def resample_phases(time: np.ndarray, phases: np.ndarray, grid: np.ndarray) -> np.ndarray:
+    """The logged phase nearest in time to each control time."""
+    idx = np.clip(np.searchsorted(time, grid), 1, len(time) - 1)
+    nearest = np.where(grid - time[idx - 1] <= time[idx] - grid, idx - 1, idx)
+    return np.asarray(phases, dtype=object)[nearest]
+
+
+def bridge_gaps(time: np.ndarray, x: np.ndarray, channel: str, max_span: float, hold: bool = False,
+                name: str = "log") -> tuple[np.ndarray, list[tuple[str, float, float]]]:
+    """Fill NaN runs of ``x`` (linearly between the neighbours, or by holding the last value when ``hold``; at the
+    ends by holding the nearest value) when the span without data is at most ``max_span`` s.
+
+    Returns:
+        the filled copy and the gaps ``(channel, t_first_missing, t_last_missing)``.
+
+    Raises:
+        RecordingError: a longer gap, naming the channel, its time and its length.
+    """
+    x = np.array(x, dtype=np.float64, copy=True)
+    bad = ~np.isfinite(x)
+    if not bad.any():
+        return x, []
+    good = np.flatnonzero(~bad)
+    edges = np.flatnonzero(np.diff(np.concatenate(([0], bad.astype(np.int8), [0]))))
+    gaps = []
+    for start, stop in zip(edges[::2], edges[1::2], strict=True):  # missing rows start .. stop-1
+        before = time[start - 1] if start > 0 else time[start]
+        after = time[stop] if stop < len(x) else time[stop - 1]
+        span = after - before
+        if span > max_span + 1e-9 * max(abs(after), 1.0):
+            raise RecordingError(
+                f"{name}: {channel} is missing from t = {time[start]:.4g} s to {time[stop - 1]:.4g} s "
+                f"({span:.3g} s without data); gaps up to {max_span:.3g} s ({MAX_GAP_STEPS} control steps) are "
+                "bridged, a longer one cannot be compared")
+        gaps.append((channel, float(time[start]), float(time[stop - 1])))
+    if hold:  # the last logged value; before the first one, the first one
+        filled = x[good][np.clip(np.searchsorted(good, np.arange(len(x))) - 1, 0, len(good) - 1)]
+    else:
+        filled = np.interp(time, time[good], x[good])
+    x[bad] = filled[bad]
+    return x, gaps
+
+
+def _dropouts(time: np.ndarray, h: float, max_span: float, name: str) -> list[tuple[str, float, float]]:
+    steps = np.diff(time)
+    out = []
+    for j in np.flatnonzero(steps > DROPOUT_FACTOR * h):
+        if steps[j] > max_span:
+            raise RecordingError(f"{name}: no rows from t = {time[j]:.4g} s to {time[j + 1]:.4g} s "
+                                 f"({steps[j]:.3g} s); dropouts up to {max_span:.3g} s are bridged")
+        out.append(("time", float(time[j] + h), float(time[j + 1] - h)))
+    return out
+
+
+def _uniform(time: np.ndarray, x: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
+    steps = np.diff(time)
+    if np.ptp(steps) <= UNIFORM_TOLERANCE * h:
+        return time, x
+    n = math.floor((time[-1] - time[0]) / h + 1e-9) + 1
+    fine_t = time[0] + h * np.arange(n)
+    return fine_t, np.interp(fine_t, time, x)
+
+
+# -- time offset -------------------------------------------------------------------------------------------------
+
+def estimate_offset(real: Mapping[str, np.ndarray], twin: Mapping[str, np.ndarray], dt: float,
+                    channels: Sequence[str] = KINEMATIC, max_shift: float = 1.0) -> OffsetEstimate:
+    """The time offset (s) that best aligns a log's signals with the twin's replay of its commands.
+
+    Least squares over fractional shifts: each channel is normalised by the twin's standard deviation, the twin is
+    read at ``t - s`` by cubic interpolation, and the mean squared residual over the rows that every shift in
+    ``[-max_shift, max_shift]`` keeps inside the record is minimised (a scan at whole steps, then a bounded
+    refinement within a step of the best). Positive: the log lags the twin.
+
+    Args:
+        real, twin: SI signals (steps,) at the same control times, step ``dt`` (s).
+        channels: channels to use where present and finite in both (default: the kinematic ones).
+        max_shift: largest offset searched, s.
+    """
+    names = tuple(c for c in channels if c in real and c in twin
+                  and np.all(np.isfinite(real[c])) and np.all(np.isfinite(twin[c])) and np.std(twin[c]) > 0)
+    if not names:
+        return OffsetEstimate(0.0, False, float("nan"), float("nan"), ())
+    n = len(twin[names[0]])
+    m = math.ceil(max_shift / dt)
+    if n - 2 * m < 4:  # too short for the search range: shrink it to leave a few rows to compare
+        m = max((n - 4) // 2, 0)
+    t = dt * np.arange(n)
+    keep = slice(m, n - m)
+    scale = {c: float(np.std(twin[c])) for c in names}
+    splines = {c: CubicSpline(t, twin[c] / scale[c]) for c in names}
+    target = {c: real[c][keep] / scale[c] for c in names}
+
+    def cost(s: float) -> float:
+        return float(np.mean([np.mean((target[c] - splines[c](t[keep] - s)) ** 2) for c in names]))
+
+    shifts = dt * np.arange(-m, m + 1)
+    costs = np.array([cost(s) for s in shifts])
+    best = int(np.argmin(costs))
+    lo, hi = shifts[max(best - 1, 0)], shifts[min(best + 1, len(shifts) - 1)]
+    s_best, c_best = float(shifts[best]), float(costs[best])
+    if hi > lo:
+        res = optimize.minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": 1e-4 * dt})
+        if res.fun < c_best:
+            s_best, c_best = float(res.x), float(res.fun)
+    c_zero = cost(0.0)
+    significant = (abs(s_best) >= MIN_OFFSET_STEPS * dt) and c_best <= (1.0 - MIN_OFFSET_GAIN) * c_zero
+    return OffsetEstimate(s_best, bool(significant), c_zero, c_best, names)
+
+
+def shift_signals(ep: EpisodeData, offset: float) -> EpisodeData:
+    """``ep`` with its signals moved by ``-offset`` s relative to its commands (cubic interpolation), so a log that
+    lags the twin by ``offset`` lines up with it.
+
+    Rows whose shifted time falls after the log's end are trimmed (with their commands; the replay starts from the
+    reset, so the first rows are kept); for a negative offset, the first rows, whose shifted time falls before the
+    log's start, take the first sample's value (a warning in the report says how many). The report, if any, gets
+    ``time_offset = offset``.
+    """
+    if offset == 0.0:
+        return ep
+    t = ep.time
+    keep = int(np.searchsorted(t, t[-1] - offset + 1e-9 * ep.dt, side="right")) if offset > 0 else len(t)
+    if keep < 2:
+        raise RecordingError(f"{ep.name}: an offset of {offset:.3g} s leaves no rows")
+    at = np.clip(t[:keep] + offset, t[0], t[-1])
+    signals = {k: CubicSpline(t, v)(at) for k, v in ep.signals.items()}
+    report = ep.input_report
+    if report is not None:
+        held = int(np.sum(t[:keep] + offset < t[0] - 1e-12))
+        extra = (f"time offset {offset:.3g} s: the first {held} rows hold the first logged value",) if held else ()
+        report = dataclasses.replace(report, time_offset=float(offset), warnings=report.warnings + extra)
+    return dataclasses.replace(ep, time=t[:keep].copy(), commands=ep.commands[:keep].copy(), signals=signals,
+                               phases=ep.phases[:keep].copy(), input_report=report)
+
+
+# -- sensor low-pass ---------------------------------------------------------------------------------------------
+
+def first_order_filter(x: np.ndarray, dt: float, tau: float) -> np.ndarray:
+    """``x`` (sampled every ``dt`` s) through a first-order lag ``tau dy/dt = x - y`` (``tau`` in s).
+
+    Exact discretisation for an input linear between samples: with ``a = exp(-dt/tau)`` and
+    ``c = tau (1 - a) / dt``, ``y_k = a y_{k-1} + (1 - c) x_k + (c - a) x_{k-1}``; the sensor starts settled
+    (``y_0 = x_0``). ``tau <= 0`` returns a copy of ``x``.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    if tau <= 0 or len(x) == 0:
+        return x.copy()
+    a = math.exp(-dt / tau)
+    c = tau * (1.0 - a) / dt
+    b, den = np.array([1.0 - c, c - a]), np.array([1.0, -a])
+    y, _ = signal.lfilter(b, den, x, zi=signal.lfilter_zi(b, den) * x[0])
+    return y
+
+
+def estimate_sensor_tau(real: Mapping[str, np.ndarray], twin: Mapping[str, np.ndarray], dt: float,
+                        channels: Sequence[str] | None = None) -> float:
+    """One first-order sensor time constant (s) common to ``channels`` (default: every compared channel present
+    and finite in both): the ``tau`` in ``[0, TAU_MAX]`` minimising the mean squared residual of ``real`` against
+    the twin passed through :func:`first_order_filter` (each channel normalised by the twin's spread). A scan on
+    a geometric grid, then a bounded scalar search around the best point; 0 when no filter lowers the residual by
+    :data:`MIN_TAU_GAIN`.
+    """
+    chosen = channels if channels is not None else COMPARED
+    names = [c for c in chosen if c in real and c in twin and np.all(np.isfinite(real[c]))
+             and np.all(np.isfinite(twin[c])) and np.std(twin[c]) > 0]
+    if not names:
+        return 0.0
+    scale = {c: float(np.std(twin[c])) for c in names}
+
+    def cost(tau: float) -> float:
+        return float(np.mean([np.mean(((real[c] - first_order_filter(twin[c], dt, tau)) / scale[c]) ** 2)
+                              for c in names]))
+
+    grid = np.concatenate(([0.0], np.geomspace(0.01 * dt, TAU_MAX, 24)))  # 24 points: ~30 % apart
+    costs = np.array([cost(v) for v in grid])
+    best = int(np.argmin(costs))
+    if best == 0:
+        return 0.0
+    lo, hi = grid[best - 1], grid[min(best + 1, len(grid) - 1)]
+    res = optimize.minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": 1e-4})
+    tau, c_tau = (float(res.x), float(res.fun)) if res.fun < costs[best] else (float(grid[best]), costs[best])
+    return tau if c_tau <= (1.0 - MIN_TAU_GAIN) * costs[0] else 0.0
+
+
+__all__ = [
+    "KINEMATIC", "MAX_GAP_STEPS", "InputReport", "OffsetEstimate", "PreparedLog",
+    "antialias_filter", "bridge_gaps", "control_grid", "estimate_offset", "estimate_sensor_tau",
+    "first_order_filter", "prepare_log", "resample_commands", "resample_phases", "resample_signal",
+    "shift_signals",
+]

@@ -1,0 +1,120 @@
+"""Before comparing a log with its twin: the twin's start when the log has no seed, a common sensor filter, a
+time offset between the log's signals and its commands.
+
+:func:`align` takes the analysed episode and the nominal twin and returns both as they should be compared, plus
+an :class:`Alignment` saying what was estimated (reported in the diagnosis). Each estimate is applied only when it
+is worth it (``estimate_offset``'s and ``estimate_sensor_tau``'s own thresholds); an offset is applied only when
+the lift and the tilt circuits agree on it (:data:`OFFSET_AGREEMENT`): a dead time in one actuator, which the
+catalogue names, moves one circuit only.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from discrepancy.data.episode import EpisodeData
+from discrepancy.data.fieldlog import (
+    OffsetEstimate,
+    estimate_offset,
+    estimate_sensor_tau,
+    first_order_filter,
+    shift_signals,
+)
+from discrepancy.twin.plant import Plan
+from discrepancy.twin.runner import Runner
+from discrepancy.twin.spec import SimResult, TwinSpec
+from discrepancy.twin.start import StartEstimate, estimate_start
+
+LIFT = ("lift_extension", "boom_angle", "lift_speed")  # channels moved by the lift circuit
+TILT = ("tilt_extension", "bucket_pitch", "tilt_speed")  # ... by the tilt circuit
+OFFSET_AGREEMENT = 0.5  # the circuits' offsets may differ by this many control steps
+REFINE_START = 2  # re-estimates of the start after the offset seen against the one before
+
+
+@dataclass(frozen=True)
+class Alignment:
+    """What :func:`align` estimated: the start (None when the log has a seed), the sensor filter time constant (s,
+    0: none), the offset (None when not estimated) and whether it was applied, and notes for the report."""
+
+    start: StartEstimate | None
+    sensor_tau: float
+    offset: OffsetEstimate | None
+    offset_applied: bool
+    notes: tuple[str, ...]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"start": self.start.to_dict() if self.start else None, "sensor_tau_s": self.sensor_tau,
+                "offset": self.offset.to_dict() if self.offset else None, "offset_applied": self.offset_applied,
+                "notes": list(self.notes)}
+
+
+def _filtered(result: SimResult, dt: float, tau: float) -> dict:
+    return {k: first_order_filter(v, dt, tau) for k, v in result.signals.items()} if tau > 0 else result.signals
+
+
+def _offset(ep: EpisodeData, twin: dict, notes: list[str]) -> tuple[OffsetEstimate, bool]:
+    """The log's offset against ``twin`` and whether to undo it (both circuits agree; see the module)."""
+    offset = estimate_offset(ep.signals, twin, ep.dt)
+    if not offset.significant:
+        return offset, False
+    lift, tilt = estimate_offset(ep.signals, twin, ep.dt, LIFT), estimate_offset(ep.signals, twin, ep.dt, TILT)
+    if lift.significant and tilt.significant and abs(lift.offset - tilt.offset) <= OFFSET_AGREEMENT * ep.dt:
+        return offset, True
+    notes.append(f"the kinematic channels lag the commands by {offset.offset:.3g} s, but the lift and tilt circuits "
+                 "disagree: left to the diagnosis (an actuator dead time?)")
+    return offset, False
+
+
+def align(ep: EpisodeData, spec: TwinSpec, runner: Runner) -> tuple[EpisodeData, TwinSpec, Alignment]:
+    """The episode and twin to compare, and what was estimated to get them (see the module).
+
+    Order: an offset against the default start first (the kinematics before the bucket meets the pile do not depend
+    on it), then the start on the log so aligned, then the sensor filter and what is left of the offset against
+    the twin from that start; the offsets add up and the log is shifted once."""
+    notes: list[str] = []
+    start, total, applied, offset = None, 0.0, False, None
+    if ep.seed is None:
+        first = runner.with_twin(spec).run_many(ep.commands, [Plan()])[0]
+        if not first.error:  # against the default start: a first guess, checked once the start is known
+            guess = estimate_offset(ep.signals, first.signals, ep.dt)
+            total = guess.offset if guess.significant else 0.0
+        for k in range(REFINE_START + 1):  # the start on the log so aligned, then the offset against that start
+            held = int(np.ceil(max(-total, 0.0) / ep.dt - 1e-9))  # rows a negative offset leaves unlogged
+            start = estimate_start(shift_signals(ep, total) if total else ep, runner.with_twin(spec), held)
+            spec = dataclasses.replace(spec, start=start.options)
+            again = runner.with_twin(spec).run_many(ep.commands, [Plan()])[0]
+            if again.error or k == REFINE_START:
+                break
+            refined, undo = _offset(ep, again.signals, [])
+            new_total = refined.offset if undo else 0.0
+            if abs(new_total - total) <= 0.25 * ep.dt:
+                break
+            total = new_total
+        applied, offset = total != 0.0, (estimate_offset(ep.signals, again.signals, ep.dt) if total else None)
+        assert start is not None
+        notes.append(f"the log has no reset seed: start pose and pile estimated from it ({start.replays} replays; "
+                     f"misfit {start.misfit_default:.3g} -> {start.misfit:.3g})")
+    nominal = runner.with_twin(spec).run_many(ep.commands, [Plan()])[0]
+    if nominal.error:
+        return ep, spec, Alignment(start, 0.0, offset, applied, tuple(notes))
+    shifted = shift_signals(ep, total) if total else ep
+    tau = estimate_sensor_tau(shifted.signals, nominal.signals, ep.dt)
+    rest, undo = _offset(shifted, _filtered(nominal, ep.dt, tau), notes)
+    if undo:
+        total, applied, offset = total + rest.offset, True, rest
+    if applied:
+        ep = shift_signals(ep, total)
+        notes.append(f"time offset between the log's signals and its commands: {total:.3g} s, undone")
+    if tau > 0:
+        spec = dataclasses.replace(spec, sensor_tau=tau)
+        notes.append(f"the log's channels went through a first-order sensor filter: tau {tau:.3g} s estimated, "
+                     "applied to the twin")
+    if ep.input_report is not None:
+        ep = dataclasses.replace(ep, input_report=dataclasses.replace(ep.input_report, sensor_tau=tau))
+    if offset is not None and applied:
+        offset = dataclasses.replace(offset, offset=total)
+    return ep, spec, Alignment(start, tau, offset if offset is not None else rest, applied, tuple(notes))

@@ -1,0 +1,276 @@
+"""Field-log input: resampling with anti-aliasing, NaN gaps, missing channels, time offset and sensor filter."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+from scipy.interpolate import CubicSpline, PchipInterpolator
+from scipy.signal import lfilter
+
+from discrepancy import RecordingError, load_episode
+from discrepancy.data.episode import EpisodeData, from_recording, signal_spread, to_recording
+from discrepancy.data.fieldlog import (
+    MAX_GAP_STEPS,
+    bridge_gaps,
+    control_grid,
+    estimate_offset,
+    estimate_sensor_tau,
+    first_order_filter,
+    prepare_log,
+    resample_commands,
+    resample_signal,
+    shift_signals,
+)
+from scaletwin_envs.recording.schema import COMMAND_COLUMNS
+from scaletwin_envs.signal_units import SIGNAL_UNITS
+
+DT = 0.1  # ER12's control step, s
+#: Units a data logger might write: (unit in the header, factor: file value = SI value × factor).
+LOGGER_UNITS = {"time": ("s", 1.0), "F21": ("kN", 1e-3), "F31": ("kN", 1e-3), "Pf_lift": ("kN", 1e-3),
+                "Pf_tilt": ("kN", 1e-3), "x_b": ("mm", 1e3), "y_b": ("mm", 1e3), "p_lift": ("bar", 1e-5),
+                "boom_angle": ("deg", 180 / np.pi), "lift_extension": ("mm", 1e3)}
+
+
+@pytest.fixture(scope="module")
+def clean(planted) -> EpisodeData:
+    """A nominal ER12 dig cycle of the twin at its 0.1 s control step, without noise."""
+    return planted([]).clean
+
+
+def logger_frame(time: np.ndarray, commands: np.ndarray, signals: dict[str, np.ndarray],
+                 phases: np.ndarray | None = None) -> pd.DataFrame:
+    """A data logger's table: ``name [unit]`` headers in the logger's units."""
+    cols = {"time [s]": time}
+    cols.update({f"{c} [1]": commands[:, i] for i, c in enumerate(COMMAND_COLUMNS)})
+    for k, v in signals.items():
+        unit, factor = LOGGER_UNITS.get(k, (SIGNAL_UNITS[k], 1.0))
+        cols[f"{k} [{unit}]"] = v * factor
+    if phases is not None:
+        cols["phase"] = phases
+    return pd.DataFrame(cols)
+
+
+def upsampled(ep: EpisodeData, fs: float, noise: float, seed: int, jitter: float = 0.0
+              ) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray], np.ndarray]:
+    """``ep`` as a logger at ``fs`` Hz would have seen it: signals through a cubic spline plus white noise (a
+    fraction ``noise`` of each spread), commands held over each control interval (the command of row k over
+    ``(t_k - dt, t_k]``), phases of the row whose interval holds the sample; timestamps jittered by ``jitter``
+    sampling steps (uniform)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(ep.time[0], ep.time[-1] + 1e-9, 1.0 / fs)
+    t[1:-1] += jitter / fs * rng.uniform(-0.5, 0.5, len(t) - 2)
+    sd = {k: noise * v for k, v in signal_spread(ep.signals).items()}
+    sig = {k: CubicSpline(ep.time, v)(t) + sd[k] * rng.standard_normal(len(t)) for k, v in ep.signals.items()}
+    row = np.clip(np.searchsorted(ep.time, t - 1e-9), 0, len(ep) - 1)  # interval (t_k - dt, t_k] -> row k
+    return t, ep.commands[row], sig, ep.phases[row]
+
+
+# -- resampling ----------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("jitter", [0.0, 0.3])
+def test_sine_and_ramp_at_500_hz_read_at_the_control_times(jitter: float) -> None:
+    rng = np.random.default_rng(3)
+    fs, f0 = 500.0, 0.7
+    t = np.arange(0.0, 10.0 + 1e-9, 1 / fs)
+    t[1:-1] += jitter / fs * rng.uniform(-0.5, 0.5, len(t) - 2)  # the logger's clock jitters between the ends
+
+    def truth(tt: np.ndarray) -> np.ndarray:
+        return 2.0 + 0.3 * tt + np.sin(2 * np.pi * f0 * tt)
+
+    grid = control_grid(t, DT)
+    np.testing.assert_allclose(grid, DT * np.arange(1, 101))  # rows at the END of each control step
+    got = resample_signal(t, truth(t), grid, DT)
+    assert np.max(np.abs(got - truth(grid))) < 2e-3
+
+
+def test_tone_above_the_twins_band_does_not_fold_back() -> None:
+    fs, f_tone = 500.0, 13.0  # 13 Hz sampled every 0.1 s would fold onto 3 Hz at full amplitude
+    t = np.arange(0.0, 10.0 + 1e-9, 1 / fs)
+    tone = np.sin(2 * np.pi * f_tone * t + 0.4)
+    grid = control_grid(t, DT)
+    naive = np.interp(grid, t, tone)
+    assert np.max(np.abs(naive)) > 0.5  # what plain sampling would give
+    got = resample_signal(t, tone, grid, DT)
+    inside = (grid > 0.4) & (grid < 9.6)  # half a filter length (0.36 s) from the ends: see resample_signal
+    assert np.max(np.abs(got[inside])) < 2e-3
+    assert np.max(np.abs(got[~inside][:-1])) < 0.1  # attenuated less near the ends, not at all on the last sample
+
+
+def test_commands_are_held_per_control_interval() -> None:
+    fs = 200.0
+    t = np.arange(0.0, 3.0 + 1e-9, 1 / fs)
+    step_cmd = np.repeat(np.linspace(-1, 1, 30), 20)  # one value per 0.1 s interval (t_k - dt, t_k]
+    cmds = np.column_stack((np.concatenate(([0.0], step_cmd)), np.zeros(len(t)), np.full(len(t), 0.5)))
+    grid = control_grid(t, DT)
+    out = resample_commands(t, cmds, grid, DT)
+    np.testing.assert_allclose(out[:, 0], np.linspace(-1, 1, 30), atol=1e-9)
+    np.testing.assert_allclose(out[:, 2], 0.5, atol=1e-12)
+    half = np.where((t > 1.05) & (t <= 1.1), 1.0, 0.0)  # on for the second half of interval 11 only
+    np.testing.assert_allclose(resample_commands(t, half[:, None], grid, DT)[10, 0], 0.5, atol=1e-9)
+
+
+@pytest.mark.parametrize(("fs", "jitter"), [(200.0, 0.0), (1000.0, 0.2)])
+def test_logger_csv_just_works(clean: EpisodeData, tmp_path, fs: float, jitter: float) -> None:
+    t, cmds, sig, phases = upsampled(clean, fs, 0.005, seed=int(fs), jitter=jitter)
+    path = tmp_path / f"logger_{int(fs)}hz.csv"
+    logger_frame(t, cmds, sig, phases).to_csv(path, index=False)
+    ep = load_episode(path, control_dt=DT)
+    # the log's first sample is the start of the first control step: row k is the twin's row k + 1
+    n = len(ep)
+    assert n == len(clean) - 1 and ep.dt == pytest.approx(DT)
+    np.testing.assert_allclose(ep.time, clean.time[1:], atol=1e-9)
+    # a jittered sample straddling a boundary lends its command to both intervals for a fraction of its step
+    np.testing.assert_allclose(ep.commands, clean.commands[1:], atol=1e-9 if jitter == 0 else 0.02)
+    assert (ep.phases == clean.phases[1:]).mean() > 0.97  # nearest sample: only at phase changes may it differ
+    spread = signal_spread(clean.signals)
+    for k, v in clean.signals.items():
+        err = (ep.signals[k] - v[1:]) / spread[k]
+        # white noise of 0.5 % of the spread, mostly filtered away; the filter leaves the twin's band untouched
+        assert np.sqrt(np.mean(err**2)) < 0.01, k
+        assert np.max(np.abs(err)) < 0.05, k
+    rep = ep.input_report
+    assert rep is not None and rep.resampled and rep.original_rate_hz == pytest.approx(fs, rel=1e-3)
+    assert "Kaiser" in rep.filter and rep.gaps == () and rep.channels_missing == ()
+    assert bool(rep.warnings) == (jitter > 0)
+    json.dumps(rep.to_dict())
+
+
+def test_log_slower_than_the_control_step_is_refused(clean: EpisodeData) -> None:
+    slow = clean.head(len(clean))
+    with pytest.raises(RecordingError, match="slower than the twin's control step"):
+        from_recording(to_recording(slow), control_dt=DT / 2)
+
+
+def test_native_rate_log_passes_through(clean: EpisodeData) -> None:
+    ep = from_recording(to_recording(clean), control_dt=DT)
+    np.testing.assert_array_equal(ep.time, clean.time)
+    np.testing.assert_array_equal(ep.signals["F21"], clean.signals["F21"])
+    assert ep.input_report is not None and not ep.input_report.resampled
+    assert ep.head(5).input_report is ep.input_report
+
+
+# -- gaps ----------------------------------------------------------------------------------------------------
+
+def test_short_signal_gap_is_bridged_and_reported(clean: EpisodeData) -> None:
+    rec = to_recording(clean)
+    data = rec.data.copy()
+    data.loc[40:41, "F21"] = np.nan  # two rows: 0.3 s between the neighbours
+    ep = from_recording(type(rec)(data, rec.units, rec.provenance))
+    assert ep.input_report.gaps == (("F21", pytest.approx(clean.time[40]), pytest.approx(clean.time[41])),)
+    f21 = clean.signals["F21"]
+    np.testing.assert_allclose(ep.signals["F21"][40:42], np.interp(clean.time[40:42], clean.time[[39, 42]],
+                                                                    f21[[39, 42]]))
+
+
+def test_long_signal_gap_is_refused_naming_channel_and_time(clean: EpisodeData) -> None:
+    rec = to_recording(clean)
+    data = rec.data.copy()
+    data.loc[30:30 + MAX_GAP_STEPS, "x_b"] = np.nan
+    with pytest.raises(RecordingError, match=r"x_b is missing from t = 3\.1 s to 3\.5 s \(0\.6 s without data\)"):
+        from_recording(type(rec)(data, rec.units, rec.provenance))
+
+
+def test_command_gaps_held_or_refused(clean: EpisodeData) -> None:
+    rec = to_recording(clean)
+    data = rec.data.copy()
+    data.loc[20:21, "cmd_tilt"] = np.nan
+    ep = from_recording(type(rec)(data, rec.units, rec.provenance))
+    np.testing.assert_array_equal(ep.commands[20:22, 1], clean.commands[19, 1])  # zero-order hold
+    assert ("cmd_tilt", pytest.approx(clean.time[20]), pytest.approx(clean.time[21])) in ep.input_report.gaps
+    data.loc[20:35, "cmd_tilt"] = np.nan
+    with pytest.raises(RecordingError, match=r"cmd_tilt is missing from t = 2\.1 s"):
+        from_recording(type(rec)(data, rec.units, rec.provenance))
+
+
+def test_gaps_in_a_fast_log_are_bridged_before_resampling() -> None:
+    t = np.arange(0.0, 5.0 + 1e-9, 0.005)
+    x = np.sin(t)
+    x[300:340] = np.nan  # 0.2 s
+    filled, gaps = bridge_gaps(t, x, "F31", MAX_GAP_STEPS * DT)
+    assert gaps == [("F31", pytest.approx(1.5), pytest.approx(1.695))]
+    assert np.max(np.abs(filled - np.sin(t))) < 1e-2  # a line over 0.2 s of a sine: (0.2 s)² / 8
+    x[300:400] = np.nan  # 0.5 s
+    with pytest.raises(RecordingError, match=r"F31 is missing from t = 1\.5 s"):
+        bridge_gaps(t, x, "F31", MAX_GAP_STEPS * DT)
+    cmds = np.zeros((len(t), 3))
+    log = prepare_log(t, cmds, {"F31": np.where(np.isnan(x), np.sin(t), x)}, np.full(len(t), ""), DT)
+    assert log.report.resampled and len(log.time) == 50
+
+
+# -- missing channels ----------------------------------------------------------------------------------------
+
+def test_csv_and_parquet_without_pf_tilt_are_accepted_and_reported(planted, tmp_path) -> None:
+    rec = to_recording(planted([]).noisy)
+    data = rec.data.drop(columns=["Pf_tilt"])
+    data.columns = [c if c in ("phase", "step") else f"{c} [{rec.units[c]}]" for c in data.columns]
+    data.to_csv(tmp_path / "no_pf_tilt.csv", index=False)
+    data.to_parquet(tmp_path / "no_pf_tilt.parquet")
+    own = rec.data.drop(columns=["Pf_tilt"])
+    own_path = type(rec)(own, {c: u for c, u in rec.units.items() if c in own.columns},
+                         rec.provenance).to_parquet(tmp_path / "own.parquet")
+    for path in (tmp_path / "no_pf_tilt.csv", tmp_path / "no_pf_tilt.parquet", own_path):
+        ep = load_episode(path, control_dt=DT)
+        assert "Pf_tilt" not in ep.signals and "F21" in ep.signals, path.name
+        assert "Pf_tilt" in ep.input_report.channels_missing, path.name
+
+
+def test_log_without_any_compared_signal_is_refused(clean: EpisodeData, tmp_path) -> None:
+    frame = logger_frame(clean.time, clean.commands, {})
+    frame.to_csv(tmp_path / "cmds.csv", index=False)
+    with pytest.raises(RecordingError, match="none of the compared signals"):
+        load_episode(tmp_path / "cmds.csv", control_dt=DT)
+
+
+# -- time offset ---------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("shift", [0.23, -0.14])
+def test_known_time_offset_is_recovered(clean: EpisodeData, shift: float) -> None:
+    rng = np.random.default_rng(7)
+    twin = clean.signals
+    spread = signal_spread(twin)
+    # the log lags the twin by `shift`; PCHIP, not the estimator's cubic spline, so the test is not circular
+    real = {k: PchipInterpolator(clean.time, v)(clean.time - shift) + 0.01 * spread[k] * rng.standard_normal(len(v))
+            for k, v in twin.items()}
+    est = estimate_offset(real, twin, DT)
+    assert est.offset == pytest.approx(shift, abs=0.02)
+    assert est.significant and est.cost < est.cost_zero
+    none = estimate_offset({k: v + 0.01 * spread[k] * rng.standard_normal(len(v)) for k, v in twin.items()}, twin, DT)
+    assert abs(none.offset) < 0.02 and not none.significant
+    ep = EpisodeData(clean.time, clean.commands, real, clean.phases, name="real")
+    aligned = shift_signals(ep, est.offset)
+    n = len(aligned)
+    assert n == len(clean) - (3 if shift > 0 else 0)
+    err = np.abs(aligned.signals["lift_extension"] - twin["lift_extension"][:n]) / spread["lift_extension"]
+    before = np.abs(real["lift_extension"][:n] - twin["lift_extension"][:n]) / spread["lift_extension"]
+    assert np.sqrt(np.mean(err[3:] ** 2)) < 0.3 * np.sqrt(np.mean(before[3:] ** 2))
+
+
+# -- sensor filter -------------------------------------------------------------------------------------------
+
+def test_first_order_filter_is_exact_for_a_ramp_and_settled_at_the_start() -> None:
+    t = 0.05 * np.arange(200)
+    y = first_order_filter(2.0 * t + 1.0, 0.05, 0.3)
+    assert y[0] == pytest.approx(1.0)
+    np.testing.assert_allclose(y[150:], 2.0 * (t[150:] - 0.3) + 1.0, rtol=1e-9)  # steady lag tau × slope
+    np.testing.assert_array_equal(first_order_filter(t, 0.05, 0.0), t)
+
+
+def test_sensor_time_constant_is_estimated(clean: EpisodeData) -> None:
+    tau, fs = 0.15, 1000.0
+    twin = clean.signals
+    spread = signal_spread(twin)
+    rng = np.random.default_rng(11)
+    fine_t = np.arange(clean.time[0], clean.time[-1] + 1e-9, 1 / fs)
+    a = np.exp(-1 / (fs * tau))  # the sensor simulated at 1 kHz, independently of the estimator's discretisation
+    real = {}
+    for k, v in twin.items():
+        fine = CubicSpline(clean.time, v)(fine_t)
+        y = lfilter([1 - a], [1, -a], fine, zi=[a * fine[0]])[0]
+        real[k] = np.interp(clean.time, fine_t, y) + 0.005 * spread[k] * rng.standard_normal(len(v))
+    channels = ("F21", "F31", "Pf_lift", "x_b", "y_b", "lift_extension", "tilt_extension")
+    assert estimate_sensor_tau(real, twin, DT, channels) == pytest.approx(tau, rel=0.2)
+    noisy = {k: v + 0.01 * spread[k] * rng.standard_normal(len(v)) for k, v in twin.items()}
+    assert estimate_sensor_tau(noisy, twin, DT, channels) == 0.0

@@ -1,0 +1,188 @@
+"""WheelLoaderLoadTruck-v0: mass conservation, where dumped material lands, carry statics, bucket stops, the scripted
+loading cycle, checkers, determinism, bad input."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env as gym_check_env
+from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+import scaletwin_envs  # noqa: F401  (registers the ids)
+from scaletwin_envs.envs.dump_linkage import bucket_stops
+from scaletwin_envs.envs.load_truck import ENV_ID, OBS_NAMES
+from scaletwin_envs.physics.bucket import load_centroid
+from scaletwin_envs.physics.kinematics import solve_pose
+from scaletwin_envs.physics.statics import solve_static
+from scaletwin_envs.policies.loading_cycle import LoadingCyclePolicy
+from scaletwin_envs.runtime import qpos_for_pose
+
+
+def _balance(info: dict) -> float:
+    mb = info["mass_balance"]
+    return (mb["pile"] + mb["bucket"] + mb["truck"] + mb["spill"] - mb["total"]) / mb["total"]
+
+
+@pytest.mark.parametrize("scale", ["mini", "er12", "wa475", 0.5])
+def test_both_env_checkers_pass(scale: str | float) -> None:
+    env = gym.make(ENV_ID, scale=scale)
+    gym_check_env(env.unwrapped, skip_render_check=True)
+    sb3_check_env(env, warn=False)
+    assert env.observation_space.shape == (len(OBS_NAMES),)
+
+
+def test_mass_is_conserved_through_dig_and_spill() -> None:
+    env = gym.make(ENV_ID, scale="mini")
+    _, info = env.reset(seed=3)
+    rng = np.random.default_rng(0)
+    worst = 0.0
+    for k in range(150):
+        a = np.array([0.0, 0.3, 1.0]) if k < 60 else rng.uniform(-1, 1, 3)
+        _, _, term, trunc, info = env.step(a.astype(np.float32))
+        worst = max(worst, abs(_balance(info)))
+        if term or trunc:
+            break
+    assert info["mass_balance"]["bucket"] > 0.0 or info["returned_mass"] > 0.0  # something was dug
+    assert worst < 1e-6
+
+
+def _loaded_over(env: gym.Env, edge_offset: float) -> dict:
+    """Full bucket on the truck leg, boom raised, edge ``edge_offset`` boom lengths past the inside of the near wall;
+    then tip the bucket forward and return the last info."""
+    u = env.unwrapped
+    env.reset(seed=0)
+    u.dig.load_volume = u.dig.capacity
+    u._set_leg(1)
+    pose = solve_pose(u.loader.geometry, 0.9, 0.6 - 0.9)
+    _, inner, _ = u._truck_x()
+    edge_x = float(pose.points["bucket_edge"][0])
+    u.set_state(qpos_for_pose(u.model, u.loader, pose, drive=inner + edge_offset * u.length - edge_x),
+                np.zeros(u.model.nv))
+    u.total_volume = u.pile.volume + u.dig.load_volume
+    u._payload_volume = -1.0
+    u._update_payload()
+    info = {}
+    for _ in range(40):
+        _, _, _, _, info = env.step(np.array([0.0, -1.0, 0.0], dtype=np.float32))
+    return info
+
+
+def test_dumped_load_lands_in_the_truck_only_when_over_it() -> None:
+    env = gym.make(ENV_ID, scale="er12", reset_noise_scale=0.0)
+    over = _loaded_over(env, 0.3)
+    assert over["truck_payload"] > 0.8 * over["target_payload"] / 4.0  # most of a heaped bucket
+    assert over["spilled_mass"] == 0.0 and over["passes"] == 1
+    assert abs(_balance(over)) < 1e-6
+    short = _loaded_over(env, -0.6)  # edge outside the body: all of it is spill
+    assert short["truck_payload"] == 0.0 and short["spilled_mass"] > 0.0
+    assert abs(_balance(short)) < 1e-6
+
+
+def _trajectory(seed: int) -> np.ndarray:
+    env = gym.make(ENV_ID, scale="mini")
+    obs, _ = env.reset(seed=seed)
+    rng = np.random.default_rng(5)
+    out = [obs]
+    for _ in range(30):
+        obs, *_ = env.step(rng.uniform(-1, 1, 3).astype(np.float32))
+        out.append(obs)
+    return np.array(out)
+
+
+def test_same_seed_same_trajectory() -> None:
+    a, b, c = _trajectory(1), _trajectory(1), _trajectory(2)
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(a, c)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [({"scale": 0}, "scale"), ({"soil": "mud"}, "soil"), ({"truck_height": -1}, "truck_height"),
+     ({"truck_depth": 2.0}, "truck_depth"), ({"truck_payload": float("nan")}, "truck_payload"),
+     ({"done_fraction": 1.5}, "done_fraction"), ({"carry_back": 1.0}, "carry_back"),
+     ({"dump_linkage": "yes"}, "dump_linkage"), ({"turn_back": 0}, "turn_back")],
+)
+def test_bad_kwargs_raise_value_error(kwargs: dict, match: str) -> None:
+    with pytest.raises(ValueError, match=match):
+        gym.make(ENV_ID, **kwargs)
+
+
+def test_carry_phase_pin_forces_match_the_independent_statics() -> None:
+    """Loaded, boom half raised, machine at rest on the truck leg (no soil, no truck contact): F21 and F31 from
+    MuJoCo's constraint forces equal the Newton–Euler statics of geometry and masses (physics.statics)."""
+    env = gym.make(ENV_ID, scale="er12", reset_noise_scale=0.0)
+    u = env.unwrapped
+    env.reset(seed=0)
+    u.dig.load_volume = u.dig.capacity
+    u._set_leg(1)
+    pose = solve_pose(u.loader.geometry, 0.5, 0.45 - 0.5)
+    u.set_state(qpos_for_pose(u.model, u.loader, pose), np.zeros(u.model.nv))
+    u.total_volume = u.pile.volume + u.dig.load_volume
+    u._payload_volume = -1.0
+    u._update_payload()
+    info: dict = {}
+    for _ in range(round(10.0 * u.loader.froude_time / u.dt)):  # 10 Froude times of holding still
+        _, _, _, _, info = env.step(np.zeros(3, dtype=np.float32))
+    sig = info["signals"]
+    assert info["phase"] == "carry" and info["truck_payload"] == 0.0
+    assert sig["a1"] * u.loader.froude_time / 9.81 < 1e-3  # at rest
+    boom = float(u.data.qpos[u.model.joint("boom_hinge").qposadr[0]])
+    bucket = float(u.data.qpos[u.model.joint("bucket_hinge").qposadr[0]])
+    g = u.loader.geometry
+    com = load_centroid(g, u.dig.fill()) - np.asarray(g.pin_O)
+    ref = solve_static(u.loader, solve_pose(g, boom, bucket), payload_mass=info["loaded_mass"], payload_com_local=com)
+    assert info["loaded_mass"] > 0.9 * u.dig.capacity * u.soil.density  # the heap is still in the bucket
+    assert sig["F21"] == pytest.approx(ref.F21, rel=5e-3)
+    assert sig["F31"] == pytest.approx(ref.F31, rel=5e-3)
+    empty = solve_static(u.loader, solve_pose(g, boom, bucket))
+    assert ref.F21 > 1.2 * empty.F21  # the load matters: an unloaded statics would fail the comparison
+
+
+def test_bucket_stops_keep_the_pitch_within_pi() -> None:
+    """Full tilt commands against the stops, loaded, at both ends of the boom's travel: the bucket stays on the
+    controllable side of link B's toggle and its pitch never wraps past ±π."""
+    env = gym.make(ENV_ID, scale="er12")
+    u = env.unwrapped
+    env.reset(seed=0)
+    u.dig.load_volume = u.dig.capacity
+    u._payload_volume = -1.0
+    u._update_payload()
+    lo, hi = bucket_stops(u.loader)
+    pitches, rels = [], []
+    for action in ([0.0, 1.0, -1.0], [1.0, 1.0, -1.0], [1.0, -1.0, 0.0], [-1.0, -1.0, 0.0], [-1.0, 1.0, 0.0]):
+        for _ in range(40):
+            _, _, _, _, info = env.step(np.array(action, dtype=np.float32))
+            assert info["sim_error"] is None
+            rel = float(u.data.qpos[u.model.joint("bucket_hinge").qposadr[0]])
+            assert lo - 0.05 <= rel <= hi + 0.05  # soft joint limit: a few hundredths of a radian of give
+            pitches.append(info["signals"]["bucket_pitch"])
+            rels.append(rel)
+    assert max(np.abs(pitches)) < 2.6  # boom range (-0.08, 1.17) rad + stops (-2.16, 0.90) rad
+    assert max(rels) > hi - 0.05 and min(rels) < lo + 0.05  # both stops were pushed against
+
+
+def _cycle(scale: str, soil: str, **kwargs: object) -> tuple[dict, float, int]:
+    env = gym.make(ENV_ID, scale=scale, soil=soil, **kwargs)
+    obs, info = env.reset(seed=0)
+    policy = LoadingCyclePolicy()
+    worst, dumps, last_leg = 0.0, 0, 0
+    while True:
+        obs, _, term, trunc, info = env.step(policy.act(obs))
+        worst = max(worst, abs(_balance(info)))
+        dumps += int(info["leg"] == 1 and last_leg == 0)
+        last_leg = info["leg"]
+        if term or trunc:
+            return info, worst, dumps
+
+
+def test_scripted_loading_cycle_fills_a_truck_over_several_passes() -> None:
+    """er12 in gravel: the scripted cycle fills a 3-bucket truck (done at 95 %) in several passes, within its
+    horizon, without overloading it by more than a third of a bucket, with little spill and mass conserved."""
+    info, worst, _ = _cycle("er12", "gravel", truck_payload=3.0)
+    assert info["success"] and info["sim_error"] is None
+    assert info["passes"] >= 3  # one bucket holds at most 1.1 heaped: several passes are needed
+    assert info["payload_error"] < 1.0 / 3.0 / 3.0
+    assert info["spilled_mass"] < 0.05 * info["target_payload"]
+    assert worst < 1e-6
+    assert info["time"] / gym.make(ENV_ID).unwrapped.loader.froude_time < 600.0
