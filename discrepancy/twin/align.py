@@ -98,10 +98,10 @@ def align(ep: EpisodeData, spec: TwinSpec, runner: Runner) -> tuple[EpisodeData,
         assert start is not None
         notes.append(f"the log has no reset seed: start pose and pile estimated from it ({start.replays} replays; "
                      f"misfit {start.misfit_default:.3g} -> {start.misfit:.3g})")
-    nominal = runner.with_twin(spec).run_many(ep.commands, [Plan()])[0]
+    shifted = shift_signals(ep, total) if total else ep
+    nominal = runner.with_twin(spec).run_many(shifted.commands, [Plan()])[0]
     if nominal.error:
         return ep, spec, Alignment(start, 0.0, offset, applied, tuple(notes))
-    shifted = shift_signals(ep, total) if total else ep
     tau = estimate_sensor_tau(shifted.signals, nominal.signals, ep.dt)
     rest, undo = _offset(shifted, _filtered(nominal, ep.dt, tau), notes)
     if undo:
