@@ -76,7 +76,9 @@ def _coloured(clean, rho: float, frac: float, seed: int):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("rho", [0.6, 0.9])
+@pytest.mark.parametrize("rho", [0.6, pytest.param(0.9, marks=pytest.mark.xfail(
+    strict=True, reason="known (issue 14): on a 99-step ER12 cycle the colour evidence of lift_speed is 9.0, under "
+                        "COLOUR_EVIDENCE; it is called white and a gain on it is named"))])
 def test_a_perfect_twin_under_coloured_noise_is_not_called_wrong(twin: TwinSpec, rho: float) -> None:
     clean = record(twin, [], 0.0, twin.seed).clean
     d = diagnose(_coloured(clean, rho, 0.01, 5), twin, options=DiagnoseOptions())
