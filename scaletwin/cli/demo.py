@@ -16,6 +16,8 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from scaletwin.cli.common import add_executor_args, executor_from_args
+
 if TYPE_CHECKING:
     from rich.console import Console
 
@@ -49,7 +51,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("demo", help="simulate, fit FFNN and direct-Pi, scale F21 to the miniature (about 1.5 min)")
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"output directory (default ./{DEFAULT_OUT})")
     p.add_argument("--workers", default="serial",
-                   help="processes for the simulations: an integer, or 'serial' (default; the demo is small)")
+                   help="local processes for the simulations: an integer, or 'serial' (default; the demo is small)")
+    add_executor_args(p)
     p.add_argument("--seed", type=int, default=0, help="seed of the split, the reference draw and the fit")
     p.add_argument("--no-rerun", action="store_true", help="do not write the rerun log of the fit")
     p.set_defaults(func=run)
@@ -78,7 +81,6 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
     from rich.console import Console
 
-    from scaletwin.cli.fit import executor_arg
     from scaletwin.cli.validate_mini import mini_table
     from scaling.plots import plot_predicted_vs_actual
     from scaling.provenance import write_json
@@ -86,7 +88,8 @@ def run(args: argparse.Namespace) -> int:
     console = Console()
     start = time.perf_counter()
     out: Path = args.out
-    result = fit_demo(out / "run", console, executor_arg(args.workers), args.seed, not args.no_rerun,
+    executor = executor_from_args(args, None if args.executor not in (None, "local") else args.workers)
+    result = fit_demo(out / "run", console, executor, args.seed, not args.no_rerun,
                       data_dir=out / "data")
     choice = result.choices["eq10"]
     console.print(f"      groups: π1 = {choice.output.expression()}; "

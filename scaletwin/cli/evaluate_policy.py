@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from scaletwin.cli import CommandError
-from scaletwin.cli.common import scale_arg
+from scaletwin.cli.common import add_executor_args, executor_from_args, scale_arg
 
 if TYPE_CHECKING:
     from rich.console import Console
@@ -35,7 +35,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--episodes", type=int, default=5, help="seeded episodes per policy, scale and soil (default 5)")
     p.add_argument("--seed", type=int, default=0, help="first episode seed (default 0)")
     p.add_argument("--workers", default=None,
-                   help="worker processes (default: all cores; 1 or 'serial' runs in this process)")
+                   help="local worker processes (default: all cores; 1 or 'serial' runs in this process)")
+    add_executor_args(p)
     p.add_argument("--out", type=Path, default=Path("policy_kpis"), help="output directory (default ./policy_kpis)")
     p.set_defaults(func=run)
 
@@ -75,13 +76,6 @@ def _split(text: str) -> list[str]:
     return items
 
 
-def _executor(workers: str | None) -> str | int | None:
-    if workers is None or workers == "serial":
-        return workers
-    try:
-        return int(workers)
-    except ValueError as exc:
-        raise CommandError(f"--workers must be an integer or 'serial', got {workers!r}") from exc
 
 
 def print_table(summary: Any, console: Console) -> None:
@@ -117,7 +111,7 @@ def run(args: argparse.Namespace) -> int:
     scales = list(DEFAULT_SCALES) if args.scales is None else [scale_arg(s) for s in _split(args.scales)]
     soils = list(DEFAULT_SOILS) if args.soils is None else _split(args.soils)
     episodes = evaluate_policies(policies, scales, soils, args.episodes, args.seed,
-                                 executor=_executor(args.workers))
+                                 executor=executor_from_args(args, args.workers))
     summary = summarize(episodes)
     console = Console() if sys.stdout.isatty() else Console(width=200)  # pipes and logs get the whole table
     print_table(summary, console)

@@ -15,12 +15,12 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from scaletwin.cli import CommandError
-from scaletwin.cli.common import add_executor_args, executor_arg, executor_from_args
+from scaletwin.cli.common import add_executor_args, executor_from_args
 
 if TYPE_CHECKING:
     import pandas as pd
 
-__all__ = ["executor_arg", "register", "run"]  # executor_arg: kept here for the commands that import it from here
+__all__ = ["register", "run"]
 
 DEFAULT_OUT = Path("scaletwin-fit")
 #: ``scaling.data.PRESETS`` and ``scaling.pipeline.DEFAULT_MODELS`` by name, spelt out so that registering the

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from scaletwin.cli import CommandError
+from scaletwin.cli.common import add_executor_args, executor_from_args
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -29,7 +30,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     build.add_argument("--seed", type=int, default=0, help="pipeline seed (default 0)")
     build.add_argument("--out", help="checkpoint root (default: the package's zoo/checkpoints)")
     build.add_argument("--registry", help="registry file to update (default: the package's zoo/registry.json)")
-    build.add_argument("--workers", default=None, help="simulation workers (default: the executor's default)")
+    build.add_argument("--workers", default=None, help="local simulation workers (default: all cores)")
+    add_executor_args(build)
     build.set_defaults(func=run_build)
 
 
@@ -59,7 +61,7 @@ def run_build(args: argparse.Namespace) -> int:
 
     torch.set_num_threads(1)
     cfg = BuildConfig(data_dir=Path(args.data), seed=args.seed, names=tuple(args.only) if args.only else None,
-                      executor=int(args.workers) if args.workers and args.workers.isdigit() else args.workers)
+                      executor=executor_from_args(args, args.workers))
     if args.out:
         cfg = replace(cfg, out_root=Path(args.out))
     if args.registry:
