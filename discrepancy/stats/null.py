@@ -61,7 +61,8 @@ def calibrate(ctx: Context, spec: NullSpec | None = None, effects: Sequence[Effe
     dev = np.where(np.isfinite(dev), dev, 0.0)
     spread = np.array([ctx.scales.signal_scale[s] for s in ctx.names])
     residual = np.nan_to_num(ctx.real_matrix - center)
-    noise = NoiseModel.build(ctx.names, sensor_noise(residual, spread, np.nan_to_num(center)), dev)
+    regressors = np.nan_to_num(center)  # what the twin's own signals explain is not noise (sensor_noise)
+    noise = NoiseModel.build(ctx.names, sensor_noise(residual, spread, regressors), dev)
     wins = ctx.windows()
     sizes = np.array([w.size for w in wins])
     rng = np.random.default_rng([spec.seed, 7919])
@@ -71,7 +72,7 @@ def calibrate(ctx: Context, spec: NullSpec | None = None, effects: Sequence[Effe
         fake = dev[k] + sensed  # scored like the recording: a noise model re-estimated (from the noise: the
         # twin's deviations would pass for coloured noise and make the null too narrow), with the spread of all
         # runs (a run's own rare jump left out would look like a huge residual and make that signal blind)
-        z = NoiseModel.build(ctx.names, sensor_noise(sensed, spread, np.nan_to_num(center)), dev).whiten(fake)
+        z = NoiseModel.build(ctx.names, sensor_noise(sensed, spread, regressors), dev).whiten(fake)
         null_stats.append(window_stats(z, wins))
         costs.append(float(np.sum(huber(z))))
     return NullModel(noise, NullCalibration.fit(null_stats, sizes), float(np.mean(costs)),

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from discrepancy.context import huber
 from discrepancy.data.channels import COMPARED
 from discrepancy.data.episode import EpisodeData
 from discrepancy.twin.plant import Plan
@@ -38,7 +39,6 @@ REFINE = 5  # golden-section steps around the best grid point
 MOTION = ("lift_extension", "tilt_extension", "boom_angle", "bucket_pitch", "travel_speed", "lift_speed",
           "tilt_speed", "x_b", "y_b")
 SPAN = 2.0  # searched range, in units of the half-range the env's reset draws
-HUBER = 3.0  # residuals beyond this many 1 %-of-spread units count linearly (a discrepancy, not the start)
 
 
 @dataclass(frozen=True)
@@ -71,8 +71,8 @@ def _misfit(ep: EpisodeData, result: SimResult, names: list[str], scale: np.ndar
     if result.error:
         return math.inf
     z = np.stack([(ep.signals[s][skip:] - result.signals[s][skip:]) / scale[j] for j, s in enumerate(names)], axis=1)
-    a = np.abs(np.nan_to_num(z, nan=1e3))
-    return float(np.mean(np.where(a <= HUBER, a * a, 2.0 * HUBER * a - HUBER * HUBER)))
+    # Huber's ρ: residuals beyond 3 units (3 % of a channel's spread) count linearly (a discrepancy, not the start)
+    return float(np.mean(huber(np.nan_to_num(z, nan=1e3))))
 
 
 def estimate_start(ep: EpisodeData, runner: Runner, skip: int = 0) -> StartEstimate:
