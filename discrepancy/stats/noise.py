@@ -81,9 +81,6 @@ class ChannelNoise:
         """Marginal standard deviation of the noise."""
         return float(np.hypot(self.white, self.coloured))
 
-    def to_dict(self) -> dict[str, float]:
-        return {"white_sd": self.white, "ar1_rho": self.rho, "ar1_sd": self.coloured}
-
     def sample(self, rng: np.random.Generator, steps: int) -> np.ndarray:
         """A noise realisation of ``steps`` samples (stationary from the first)."""
         out = self.white * rng.standard_normal(steps)
@@ -314,11 +311,6 @@ class NoiseModel:
     def total(self) -> np.ndarray:
         """Scale of a whitened residual, (steps, signals)."""
         return np.sqrt(self.whitener.variance + self.twin**2)
-
-    @property
-    def coloured(self) -> bool:
-        """Whether any channel's noise has a coloured part."""
-        return any(c.coloured > 0.0 for c in self.channels)
 
     def whiten(self, residual: np.ndarray) -> np.ndarray:
         """Residual (steps, signals) as prediction errors in units of the total scale; NaN where it is NaN."""
