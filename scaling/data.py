@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -207,9 +208,26 @@ def load_recordings(data_dir: str | Path) -> pd.DataFrame:
 
 def load_or_generate(data_dir: str | Path, spec: DatasetSpec, executor: str | int | Executor | None = None,
                      progress: bool = True) -> pd.DataFrame:
-    """:func:`load_recordings` after recording whatever episodes of ``spec`` are missing from ``data_dir``."""
+    """:func:`load_recordings` after recording whatever episodes of ``spec`` are missing from ``data_dir``.
+
+    Only the episodes of ``spec`` are returned: a folder reused after the spec changed (another machine drawn
+    under the same label, another soil list) keeps the old recordings, which would otherwise mix in under the
+    same machine label; they are left on disk and named in a :class:`StaleRecordingsWarning`.
+    """
     generate_recordings(spec, data_dir, executor, progress)
-    return load_recordings(data_dir)
+    frame = load_recordings(data_dir)
+    wanted = {task.key() for _, _, task in spec.tasks()}
+    keys = frame["episode_key"].astype(str)
+    stale = sorted(set(keys) - wanted)
+    if not stale:
+        return frame
+    warnings.warn(f"{data_dir}: {len(stale)} recorded episodes are not in this data set's spec (left from an "
+                  f"earlier spec, e.g. {stale[0]}); they are ignored", StaleRecordingsWarning, stacklevel=2)
+    return prepare(frame[keys.isin(wanted)])
+
+
+class StaleRecordingsWarning(UserWarning):
+    """A recordings folder holds episodes that the requested data set does not: they are not loaded."""
 
 
 # ----------------------------------------------------------------------------------------------------------------

@@ -29,7 +29,13 @@ import numpy as np
 import pandas as pd
 
 from scaletwin_envs.specs.loader import LoaderSpec
-from scaling.conformal import ExtrapolationScore, GroupConformal, auroc
+from scaling.conformal import (
+    ErrorScore,
+    ExtrapolationScore,
+    GroupConformal,
+    InputNovelty,
+    auroc,
+)
 from scaling.delta_dataset import DeltaDataset
 from scaling.evaluation import after_settling, at_rest, in_domain
 from scaling.group_choice import PI1
@@ -150,6 +156,7 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
     groups_of: dict[str, tuple[PiGroup, ...]] = {k: candidates[0].groups for k in models}
     output_of: dict[str, PiGroup] = {k: PI1 for k in models}
 
+    novelty: dict[str, InputNovelty] = {}
     for cand in candidates:
         train = pd.concat([training_rows(by_machine[m], (*cand.groups, cand.output)) for m in split.train],
                           ignore_index=True)
@@ -159,48 +166,56 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
         models[cand.name] = cand.build().fit(pairs)
         fit_seconds[cand.name] = time.perf_counter() - start
         groups_of[cand.name], output_of[cand.name] = cand.groups, cand.output
+        novelty[cand.name] = InputNovelty(seed=seed).fit(pairs.pi_target)
+    for name in ("direct-Pi (ER12)", "direct-Pi (nearest machine)"):
+        novelty[name] = novelty[candidates[0].name]
 
     judged = {m: by_machine[m][judged_rows(by_machine[m])].reset_index(drop=True)
               for m in (*split.calibration, *split.test)}
-
-    def pairs_for(name: str, target: str) -> tuple[DeltaDataset, pd.DataFrame]:
-        src_machine = split.reference if name == "direct-Pi (ER12)" else source_of[target]
-        tgt = judged[target]
-        return matched_pairs(by_machine[src_machine], tgt, output_of[name], groups_of[name]), tgt
-
-    calibrators: dict[str, GroupConformal] = {}
-    for name, model in models.items():
-        res, sc, grp = [], [], []
-        for m in split.calibration:
-            pairs, _ = pairs_for(name, m)
-            log_pred, scale = _predict(model, pairs)
-            res.append(pairs.log_delta - log_pred)
-            sc.append(scale)
-            grp.append(np.full(len(pairs), m))
-        calibrators[name] = GroupConformal(0.9).fit(np.concatenate(res), np.concatenate(sc), np.concatenate(grp))
-
     extrap = ExtrapolationScore().fit(np.array([design_descriptor(split.specs[m]) for m in split.train]))
     extrap.calibrate(np.array([design_descriptor(split.specs[m]) for m in split.calibration]))
-    machine_score = {m: float(extrap.score(design_descriptor(split.specs[m]))[0]) for m in split.test}
-    auroc_rows: dict[str, tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]] = {}
+    machine_score = {m: float(extrap.score(design_descriptor(split.specs[m]))[0])
+                     for m in (*split.calibration, *split.test)}
 
+    def predict(name: str, target: str) -> _Predicted:
+        src_machine = split.reference if name == "direct-Pi (ER12)" else source_of[target]
+        tgt = judged[target]
+        pairs = matched_pairs(by_machine[src_machine], tgt, output_of[name], groups_of[name])
+        log_pred, scale = _predict(models[name], pairs)
+        pred = pairs.recover(np.exp(log_pred))
+        f21 = pairs.target_values()
+        features = np.column_stack([np.log(scale), np.log(novelty[name].score(pairs.pi_target)),
+                                    np.abs(log_pred), np.full(len(pairs), np.log(machine_score[target]))])
+        return _Predicted(pairs, tgt, log_pred, scale, pred, f21, _errors(pred, f21), features)
+
+    calibrators: dict[str, GroupConformal] = {}
+    error_scores: dict[str, ErrorScore] = {}
+    for name in models:
+        cal = [predict(name, m) for m in split.calibration]
+        grp = np.concatenate([np.full(len(c.err), m) for c, m in zip(cal, split.calibration, strict=True)])
+        calibrators[name] = GroupConformal(0.9).fit(np.concatenate([c.pairs.log_delta - c.log_pred for c in cal]),
+                                                    np.concatenate([c.scale for c in cal]), grp)
+        error_scores[name] = ErrorScore(MISS).fit(np.concatenate([c.features for c in cal]),
+                                                  np.concatenate([c.err for c in cal]), grp)
+
+    auroc_rows: dict[str, tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray], list[np.ndarray]]] = {}
+    warn_share: dict[str, dict[str, float]] = {}
     for m in split.test:
         say(f"judging {m} (source {source_of[m]})")
-        for name, model in models.items():
-            pairs, tgt = pairs_for(name, m)
-            log_pred, scale = _predict(model, pairs)
-            lo, hi = calibrators[name].interval(log_pred, scale)
-            f21 = pairs.target_values()
-            pred = pairs.recover(np.exp(log_pred))
-            err = _errors(pred, f21)
-            inside = (pairs.log_delta >= lo) & (pairs.log_delta <= hi)
-            kind = _kinds(pairs, tgt)
+        for name in models:
+            p = predict(name, m)
+            lo, hi = calibrators[name].interval(p.log_pred, p.scale)
+            inside = (p.pairs.log_delta >= lo) & (p.pairs.log_delta <= hi)
+            kind = _kinds(p.pairs, p.tgt)
             results.append(_summarise(m, name, source_of[m] if name != "direct-Pi (ER12)" else split.reference,
-                                      err, kind, pred, f21, inside))
-            bucket = auroc_rows.setdefault(name, ([], [], []))
-            bucket[0].append(np.full(len(err), machine_score[m]))
-            bucket[1].append(scale)
-            bucket[2].append(err > MISS)
+                                      p.err, kind, p.pred, p.f21, inside))
+            risk = error_scores[name].score(p.features)
+            warn_share.setdefault(name, {})[m] = float(np.mean(error_scores[name].warns(p.features)))
+            bucket = auroc_rows.setdefault(name, ([], [], [], []))
+            bucket[0].append(np.full(len(p.err), machine_score[m]))
+            bucket[1].append(p.scale)
+            bucket[2].append(risk)
+            bucket[3].append(p.err > MISS)
         tgt = judged[m]
         f21 = tgt["F21"].to_numpy(float)
         pred = tgt["tilt_ratio"].to_numpy(float) * np.abs(tgt["Pf_tilt"].to_numpy(float))
@@ -208,15 +223,40 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
         label = np.where(at_rest(tgt), "static", "dynamic")
         results.append(_summarise(m, "linkage statics", "-", err, label, pred, f21,
                                   np.full(len(err), np.nan)))
-    extrap_out: dict[str, Any] = {"threshold": extrap.threshold_, "machine_score": machine_score,
-                                  "warned": {m: bool(s > extrap.threshold_) for m, s in machine_score.items()},
-                                  "auroc_design_distance": {}, "auroc_ensemble_spread": {}}
-    for name, (dist, spread, miss) in auroc_rows.items():
+    extrap_out: dict[str, Any] = {
+        "threshold": extrap.threshold_, "machine_score": {m: machine_score[m] for m in split.test},
+        "warned": {m: bool(machine_score[m] > extrap.threshold_) for m in split.test},
+        "auroc_design_distance": {}, "auroc_ensemble_spread": {}, "auroc_error_score": {}, "warn_share": warn_share,
+        "error_score": {name: {"coef": e.coef_.tolist() if e.coef_ is not None else None,
+                               "threshold": e.threshold_,
+                               "features": list(ERROR_FEATURES)} for name, e in error_scores.items()}}
+    for name, (dist, spread, risk, miss) in auroc_rows.items():
         y = np.concatenate(miss)
         extrap_out["auroc_design_distance"][name] = auroc(np.concatenate(dist), y)
+        extrap_out["auroc_error_score"][name] = auroc(np.concatenate(risk), y)
         if isinstance(models[name], DeepEnsemble):
             extrap_out["auroc_ensemble_spread"][name] = auroc(np.concatenate(spread), y)
     return GeneralisationResult(results, extrap_out, fit_seconds)
+
+
+#: Columns of the per-row features of the error score (:class:`scaling.conformal.ErrorScore`).
+ERROR_FEATURES = ("ln σ of ln δ1 (ensembles; 0 otherwise)", "ln input novelty", "|ln δ1| predicted",
+                  "ln design distance")
+
+
+@dataclass
+class _Predicted:
+    """One model's prediction for one machine's judged rows: the pairs, log δ1 and its scale, F21 predicted and
+    actual (N), relative error and the error score's features (:data:`ERROR_FEATURES`)."""
+
+    pairs: DeltaDataset
+    tgt: pd.DataFrame
+    log_pred: np.ndarray
+    scale: np.ndarray
+    pred: np.ndarray
+    f21: np.ndarray
+    err: np.ndarray
+    features: np.ndarray
 
 
 def _kinds(pairs: DeltaDataset, tgt: pd.DataFrame) -> np.ndarray:

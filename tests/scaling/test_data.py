@@ -6,9 +6,19 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import pytest
 
 from scaling import evaluation as ev
-from scaling.data import STANDARD, DatasetSpec, dataset_hash, generate_frame, generate_recordings, load_recordings
+from scaling.data import (
+    STANDARD,
+    DatasetSpec,
+    StaleRecordingsWarning,
+    dataset_hash,
+    generate_frame,
+    generate_recordings,
+    load_or_generate,
+    load_recordings,
+)
 from scaling.holds import draw_hold, make_hold_policy, pose_in_workspace
 
 ONE = DatasetSpec(machines=(("er12", "er12"),), soils=("gravel",), pile_heights=(0.7,), dig_seeds=1,
@@ -45,3 +55,16 @@ def test_back_ends_agree_and_holds_reach_rest(tmp_path: Path) -> None:
     # a rerun skips recorded episodes and returns the same table
     generate_recordings(ONE, tmp_path, executor="serial", progress=False)
     assert dataset_hash(load_recordings(tmp_path)) == dataset_hash(frame)
+
+
+def test_a_reused_folder_returns_only_the_episodes_of_the_spec(tmp_path: Path) -> None:
+    """A recordings folder reused after the spec changed (here: the same label on a 0.9-scale machine) keeps the
+    old episodes on disk; ``load_or_generate`` records the new ones, returns only those, and warns."""
+    first = load_or_generate(tmp_path, ONE, executor="serial", progress=False)
+    other = DatasetSpec(machines=(("er12", 0.9),), soils=("gravel",), pile_heights=(0.7,), dig_seeds=1,
+                        hold_episodes=1, hold_poses=2)
+    with pytest.warns(StaleRecordingsWarning, match="2 recorded episodes are not in this data set's spec"):
+        second = load_or_generate(tmp_path, other, executor="serial", progress=False)
+    assert set(second["episode_key"]) == {task.key() for _, _, task in other.tasks()}
+    assert not set(second["episode_key"]) & set(first["episode_key"])
+    assert dataset_hash(second) == dataset_hash(generate_frame(other))

@@ -14,8 +14,10 @@ from scaletwin_envs.design_space import DesignSpace, build_design
 from scaletwin_envs.physics.kinematics import LinkageUnreachable, pose_from_cylinders
 from scaletwin_envs.specs.loader import GRAVITY, LoaderSpec, make_loader
 from scaling.conformal import (
+    ErrorScore,
     ExtrapolationScore,
     GroupConformal,
+    InputNovelty,
     auroc,
     coverage_by_group,
     group_weighted_quantile,
@@ -405,6 +407,58 @@ def test_extrapolation_score_flags_designs_outside_the_training_cloud() -> None:
         ExtrapolationScore(k=3).fit(train[:3])
     with pytest.raises(RuntimeError, match="not fitted"):
         ExtrapolationScore().score(train)
+
+
+def test_input_novelty_ranks_rows_by_distance_to_the_training_rows() -> None:
+    """Rows drawn like the training rows score about 1; rows moved off the cloud score more, the farther the
+    more; a constant column and groups spanning decades do not break it; bad input is refused."""
+    rng = np.random.default_rng(3)
+    train = np.column_stack([np.exp(rng.normal(0, 2, 4000)), rng.normal(5, 1, 4000), np.full(4000, 7.0)])
+    nov = InputNovelty(k=5, max_rows=3000).fit(train)
+    fresh = np.column_stack([np.exp(rng.normal(0, 2, 500)), rng.normal(5, 1, 500), np.full(500, 7.0)])
+    near, mid, far = (nov.score(fresh + np.array([0.0, shift, 0.0])) for shift in (0.0, 2.0, 6.0))
+    assert 0.7 < np.median(near) < 1.5
+    assert np.median(near) < np.median(mid) < np.median(far)
+    assert auroc(np.r_[near, far], np.r_[np.zeros(500), np.ones(500)].astype(bool)) > 0.95
+    assert np.isfinite(nov.score(np.array([[np.nan, 5.0, 7.0]]))).all()  # NaN input: scored far, not NaN
+    with pytest.raises(ValueError, match="more than k"):
+        InputNovelty(k=5).fit(train[:5])
+    with pytest.raises(RuntimeError, match="not fitted"):
+        InputNovelty().score(train)
+
+
+def _machines_with_errors(rng: np.random.Generator, n_machines: int, rows: int) -> tuple[np.ndarray, ...]:
+    """Per machine a hidden error level, per row a feature that reads it with noise and a feature that is
+    noise only; the relative error is |N(0, level)|."""
+    level = np.repeat(np.exp(rng.normal(np.log(0.05), 0.8, n_machines)), rows) * np.exp(rng.normal(0, 0.3,
+                                                                                                   n_machines * rows))
+    informative = np.log(level) + rng.normal(0, 0.3, level.size)
+    useless = rng.normal(0, 1, level.size)
+    error = np.abs(rng.normal(0, 1, level.size)) * level
+    groups = np.repeat(np.arange(n_machines), rows).astype(str)
+    return np.column_stack([informative, useless]), error, groups
+
+
+def test_error_score_ranks_rows_by_risk_on_machines_it_never_saw() -> None:
+    """Fitted on 10 machines, on 30 others it separates rows more than 10 % off from the rest (AUROC > 0.8, far
+    above the useless feature alone), its weight on the useless feature is small, it warns on about 5 % of the
+    rows of new machines drawn alike, and it refuses calibration data with no misses."""
+    rng = np.random.default_rng(4)
+    x, e, g = _machines_with_errors(rng, 10, 300)
+    score = ErrorScore(miss=0.10).fit(x, e, g)
+    assert score.coef_ is not None and abs(score.coef_[2]) < 0.25 * abs(score.coef_[1])
+    x2, e2, _ = _machines_with_errors(rng, 30, 300)
+    risk = score.score(x2)
+    assert auroc(risk, e2 > 0.10) > 0.8
+    assert auroc(x2[:, 1], e2 > 0.10) < 0.6
+    assert 0.01 <= np.mean(score.warns(x2)) <= 0.12
+    assert score.warns(np.array([[np.nan, 0.0]])).all()  # a row it cannot score warns
+    with pytest.raises(ValueError, match="one side"):
+        ErrorScore(miss=10.0).fit(x, e, g)
+    with pytest.raises(ValueError, match="one entry per row"):
+        ErrorScore().fit(x, e[:-1], g)
+    with pytest.raises(RuntimeError, match="not fitted"):
+        ErrorScore().score(x)
 
 
 def test_auroc_is_the_pairwise_probability() -> None:
