@@ -1,11 +1,12 @@
 """Leave-machine-out benchmark: δ1 models judged on machines of the product line they never saw.
 
-Machines: 32 drawn from the design space with seed 0 plus the ER12 preset; 24 of the drawn ones and the ER12
-train, the other 8 calibrate the conformal intervals and the extrapolation threshold. Test: 10 machines drawn
-with seed 1 (never used for anything else), the ``mini`` preset (simulated dig cycles and holds: the miniature)
-and the ``wa475`` preset. Every machine digs 4 soils × 2 pile heights and does 4 static-hold episodes.
-Per test machine: F21 MAPE and median error on dig rows and on holds (rows after start-up settling with F21 >
-5 % of the machine's peak), peak F21 error, 90 % interval coverage; the extrapolation score's AUROC.
+Machines: 40 drawn from the design space with seed 0 plus the ER12 preset; 24 of the drawn ones and the ER12
+train, the other 16 calibrate the conformal intervals, the error score and the extrapolation threshold.
+Test: 10 machines drawn with seed 1 (never used for anything else), the ``mini`` preset (simulated dig cycles
+and holds: the miniature) and the ``wa475`` preset. Every machine digs 4 soils × 2 pile heights and does 4
+static-hold episodes. Per test machine: F21 MAPE and median error on dig rows and on holds (rows after start-up
+settling with F21 > 5 % of the machine's peak), peak F21 error, 90 % interval coverage, the share of rows the error
+score warns on; over all test rows, the AUROC of the error score and of the design distance.
 
 Run: ``python benchmarks/scaling_generalisation.py [--data DIR] [--workers 2] [--quick]``; recordings are kept
 in ``--data`` (resumable: an interrupted run re-simulates only what is missing), results go to
@@ -22,16 +23,15 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 import torch
 
 from scaletwin_envs.host import host_line
-from scaling.data import dataset_hash, load_or_generate
-from scaling.generalisation import Candidate, Split, evaluate
-from scaling.group_choice import POSE_GROUPS, choose_groups
+from scaling.data import dataset_hash
+from scaling.generalisation import PRODUCT_LINE_NET, Candidate, LeaveMachineOut, evaluate, linkage_input_groups
+from scaling.group_choice import POSE_GROUPS
 from scaling.models import FFNN, DeepEnsemble
-from scaling.product_line import LINKAGE_GROUPS, PI1_LINKAGE, ProductLine, add_design_signals, relief_share
+from scaling.product_line import LINKAGE_GROUPS, PI1_LINKAGE, relief_share
 from scaling.provenance import code_version, versions
 
 
@@ -41,29 +41,29 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--quick", action="store_true", help="8+4 machines, 2 soils: a smoke run (minutes)")
     ap.add_argument("--out", default="benchmarks/results/scaling_generalisation")
+    ap.add_argument("--render", action="store_true", help="rewrite the Markdown from the CSV and JSON of --out")
     args = ap.parse_args()
+    if args.render:
+        out = Path(args.out)
+        text = report(pd.read_csv(out.with_suffix(".csv")), json.loads(out.with_suffix(".json").read_text()))
+        out.with_suffix(".md").write_text(text)
+        print(text)
+        return
     torch.set_num_threads(1)
     load = [os.getloadavg()[0]]
     started = time.perf_counter()
-    n_train, n_cal, n_test = (6, 3, 3) if args.quick else (24, 8, 10)
-    soils = ("gravel", "clay_loam") if args.quick else ("gravel", "sand", "sandy_loam", "clay_loam")
-    train_line = ProductLine(n_machines=n_train + n_cal, seed=0, soils=soils, presets=("er12",))
-    test_line = ProductLine(n_machines=n_test, seed=1, soils=soils, presets=("mini", "wa475"))
-    frames = []
-    for tag, line in (("train", train_line), ("test", test_line)):
-        print(f"simulating the {tag} line ({len(line.dataset_spec().tasks())} episodes) into {args.data / tag}")
-        frames.append(add_design_signals(load_or_generate(args.data / tag, line.dataset_spec(), args.workers),
-                                         line.specs()))
-        load.append(os.getloadavg()[0])
-    frame = pd.concat(frames, ignore_index=True)
-    drawn = [m.name for m in train_line.machines]
-    split = Split(train=("er12", *drawn[:n_train]), calibration=tuple(drawn[n_train:]),
-                  test=(*(m.name for m in test_line.machines), "mini", "wa475"),
-                  specs={**train_line.specs(), **test_line.specs()})
+    layout = (LeaveMachineOut(n_train=6, n_calibration=3, n_test=3, soils=("gravel", "clay_loam")) if args.quick
+              else LeaveMachineOut())
+    train_line, test_line = layout.lines()
+    print(f"simulating or loading {len(train_line.dataset_spec().tasks()) + len(test_line.dataset_spec().tasks())} "
+          f"episodes in {args.data}")
+    frame = layout.load(args.data, args.workers)
+    load.append(os.getloadavg()[0])
+    split = layout.split()
     train_frame = frame[frame["machine"].isin(split.train)]
-    eq10 = choose_groups(train_frame[np.isfinite(train_frame["F21"])], "eq10").inputs
-    linkage = (*eq10, *POSE_GROUPS, *LINKAGE_GROUPS)
-    net = {"hidden_layers": 3, "units": 64, "lr": 1e-3, "epochs": 200, "threads": 1}
+    linkage = linkage_input_groups(train_frame)
+    eq10 = linkage[: -len(POSE_GROUPS) - len(LINKAGE_GROUPS)]
+    net = PRODUCT_LINE_NET
     candidates = [
         Candidate("ffnn-eq10 (pairs)", lambda: FFNN(**net, include_source=True), eq10),
         Candidate("ffnn-linkage (pairs)", lambda: FFNN(**net, include_source=True), linkage),
@@ -81,8 +81,7 @@ def main() -> None:
     table.to_csv(out.with_suffix(".csv"), index=False, float_format="%.4g")
     meta = {"date": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"), "code": code_version(),
             "host": host_line(), "load_avg": load, "seconds": time.perf_counter() - started,
-            "versions": versions(), "train_line": train_line.to_dict(), "test_line": test_line.to_dict(),
-            "split": {"train": split.train, "calibration": split.calibration, "test": split.test},
+            "versions": versions(), **layout.to_dict(),
             "groups": {"eq10": [g.expression() for g in eq10], "linkage": [g.expression() for g in linkage]},
             "data_hash": dataset_hash(frame.drop(columns=["episode_key"])), "fit_seconds": result.fit_seconds,
             "extrapolation": result.extrapolation, "quick": args.quick,
@@ -105,11 +104,14 @@ def report(table: pd.DataFrame, meta: dict) -> str:
         f"{len(meta['split']['calibration'])} drawn machines; test: {len(meta['split']['test']) - 2} drawn machines "
         "(seed 1) + `mini` + `wa475`. Rows judged: after start-up settling, F21 > 5 % of the machine's peak; static "
         "= inertial groups below 0.1 % of F31 (the bucket held still), dynamic = the rest. "
-        "Source of every target: its nearest training machine by design (direct-Pi (ER12): the ER12).", "",
+        "Source of every target: its nearest training machine by design (direct-Pi (ER12): the ER12). "
+        "Intervals: split conformal over the calibration machines (each weighing the same) on a per-row scale, "
+        "either learned from the error score's features (cross-fitted over the calibration machines, "
+        "`scaling.conformal.ResidualScale`) or the model's own spread (an ensemble's σ, 1 for a point model).", "",
         "## Over the drawn test machines", "",
         "| model | dynamic rows: MAPE median / worst [%] | static rows: MAPE median / worst [%] | "
         "peak F21 error median [%] | "
-        "90 % coverage min–max | beats nearest-machine direct-Pi on |",
+        "90 % coverage min–max: learned scale / own spread | beats nearest-machine direct-Pi on |",
         "|---|---|---|---|---|---|",
     ]
     base = drawn[drawn["model"] == "direct-Pi (nearest machine)"].set_index("machine")
@@ -118,28 +120,40 @@ def report(table: pd.DataFrame, meta: dict) -> str:
         both = (g["dynamic_mape"] + g["static_mape"]) / 2
         ref = (base["dynamic_mape"] + base["static_mape"]) / 2
         beats = int((both < ref.reindex(both.index)).sum())
-        cov = g["coverage"].dropna()
-        cov_s = f"{cov.min():.2f}–{cov.max():.2f}" if len(cov) else "–"
+        cov_s = " / ".join(f"{c.min():.2f}–{c.max():.2f}" if len(c) else "–"
+                           for c in (g["coverage"].dropna(), g["coverage_spread"].dropna()))
         lines.append(f"| {model} | {g['dynamic_mape'].median():.1f} / {g['dynamic_mape'].max():.1f} | "
                      f"{g['static_mape'].median():.1f} / {g['static_mape'].max():.1f} | "
                      f"{g['peak_error'].median():.1f} | "
                      f"{cov_s} | {beats} of {len(g)} |")
     ex = meta["extrapolation"]
-    lines += ["", "## Extrapolation score", "",
-              f"Design distance to the 3 nearest training machines (threshold {ex['threshold']:.2f}, the 95th "
-              "percentile of the calibration machines). Warned machines: "
-              + (", ".join(m for m, w in ex["warned"].items() if w) or "none") + ".", "",
-              "| model | AUROC of design distance for row error > 10 % | AUROC of ensemble spread |", "|---|---|---|"]
+    warned = ", ".join(m for m, w in ex["warned"].items() if w) or "none"
+    lines += ["", "## Which predictions to distrust", "",
+              "Error score (`scaling.conformal.ErrorScore`): the probability that a row is more than 10 % off, by a "
+              "logistic regression on what is known before the truth (the ensemble's σ of ln δ1, the row's input "
+              "novelty, the size of the correction |ln δ1|, the machine's design distance, whether the bucket is at "
+              "rest), fitted on the "
+              "calibration machines; it warns above the 95th percentile of their scores. AUROC: how well a score "
+              "separates the rows of the test machines more than 10 % off from the rest (0.5 = chance). "
+              f"Design distance alone: threshold {ex['threshold']:.2f} (95th percentile of the calibration "
+              f"machines); machines it warns on: {warned}.", "",
+              "| model | AUROC: error score | AUROC: design distance | AUROC: ensemble spread | "
+              "rows warned on, median / max over the drawn test machines |", "|---|---|---|---|---|"]
     for name, a in ex["auroc_design_distance"].items():
         spread = ex["auroc_ensemble_spread"].get(name)
-        lines.append(f"| {name} | {a:.2f} | {'–' if spread is None else f'{spread:.2f}'} |")
+        score = ex.get("auroc_error_score", {}).get(name)
+        share = pd.Series({m: v for m, v in ex.get("warn_share", {}).get(name, {}).items()
+                           if m not in ("mini", "wa475")}, dtype=float)
+        share_s = f"{100 * share.median():.0f} % / {100 * share.max():.0f} %" if len(share) else "–"
+        lines.append(f"| {name} | {'–' if score is None else f'{score:.2f}'} | {a:.2f} | "
+                     f"{'–' if spread is None else f'{spread:.2f}'} | {share_s} |")
     lines += ["", "## Every test machine", "",
               "| machine | model | source | dynamic MAPE / median [%] | static MAPE / median [%] | peak [%] | "
-              "coverage | "
-              "rows > 10 % off |", "|---|---|---|---|---|---|---|---|"]
+              "coverage: learned / spread | rows > 10 % off |", "|---|---|---|---|---|---|---|---|"]
     for r in table.itertuples():
         lines.append(f"| {r.machine} | {r.model} | {r.source} | {r.dynamic_mape:.1f} / {r.dynamic_median:.1f} | "
-                     f"{r.static_mape:.1f} / {r.static_median:.1f} | {r.peak_error:.1f} | {r.coverage:.2f} | "
+                     f"{r.static_mape:.1f} / {r.static_median:.1f} | {r.peak_error:.1f} | "
+                     f"{r.coverage:.2f} / {r.coverage_spread:.2f} | "
                      f"{100 * r.miss_share:.0f} % |")
     share = pd.Series(meta["relief_share"])
     lines += ["", f"Fit seconds: {', '.join(f'{k} {v:.0f}' for k, v in meta['fit_seconds'].items())}.", "",

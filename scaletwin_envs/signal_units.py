@@ -19,3 +19,11 @@ SIGNAL_UNITS: dict[str, str] = {
     "m_load": "kg", "F21_route2": "N", "F31_route2": "N", "Pf_lift_route2": "N", "Pf_tilt_route2": "N",
     "residual_F21": "1", "residual_F31": "1", "residual_Pf_lift": "1", "residual_Pf_tilt": "1",
 }
+
+#: Design signals: dimensionless per-row quantities that follow from the machine's drawing and its measured pose
+#: and cylinder force (computed by ``scaling.product_line.add_design_signals``), with ``F21_linkage`` (N), the pin
+#: force of the massless linkage. Not recorded by the simulator; served models of a product line take them.
+DESIGN_SIGNAL_UNITS: dict[str, str] = {"tilt_ratio": "1", "tilt_stroke": "1", "lift_stroke": "1", "fill": "1",
+                                       "F21_linkage": "N"}
+#: Every quantity a served model may take: the recorded signals and the design signals.
+QUANTITY_UNITS: dict[str, str] = {**SIGNAL_UNITS, **DESIGN_SIGNAL_UNITS}

@@ -93,6 +93,64 @@ class GroupConformal:
 
 
 @dataclass
+class ResidualScale:
+    """A per-row scale for :class:`GroupConformal`: exp of a linear model of ln |residual| on per-row features
+    (the error score's), fitted with every machine weighing the same and ridge ``l2`` on standardised features.
+
+    :meth:`cross_fit` returns each calibration machine's scales from a model fitted on the *other* calibration
+    machines, so that the conformal quantile is taken on scores the scale model did not see (cross-fitting);
+    the model kept is then fitted on all of them.
+    """
+
+    l2: float = 1e-2
+    floor: float = 1e-4
+    mean_: np.ndarray | None = None
+    std_: np.ndarray | None = None
+    coef_: np.ndarray | None = None
+
+    def fit(self, features: np.ndarray, residual: np.ndarray, groups: np.ndarray) -> ResidualScale:
+        x, r = np.atleast_2d(np.asarray(features, dtype=float)), np.asarray(residual, dtype=float)
+        g = np.asarray(groups).astype(str)
+        if x.shape[0] != r.shape[0] or r.shape[0] != g.shape[0]:
+            raise ValueError("features, residual and groups must have one entry per row")
+        ok = np.isfinite(x).all(axis=1) & np.isfinite(r)
+        if not ok.any():
+            raise ValueError("no finite calibration rows")
+        x, y, g = x[ok], np.log(np.maximum(np.abs(r[ok]), self.floor)), g[ok]
+        self.mean_, self.std_ = x.mean(axis=0), x.std(axis=0)
+        self.std_[self.std_ == 0] = 1.0
+        z = np.column_stack([np.ones(len(x)), (x - self.mean_) / self.std_])
+        _, inverse, counts = np.unique(g, return_inverse=True, return_counts=True)
+        w = 1.0 / counts[inverse]
+        penalty = self.l2 * np.eye(z.shape[1]) * w.sum()
+        penalty[0, 0] = 0.0
+        self.coef_ = np.linalg.solve(z.T @ (z * w[:, None]) + penalty, z.T @ (w * y))
+        return self
+
+    def scale(self, features: np.ndarray) -> np.ndarray:
+        """Scale per row (> 0; the median scale where a feature is not finite)."""
+        if self.coef_ is None or self.mean_ is None or self.std_ is None:
+            raise RuntimeError("ResidualScale is not fitted")
+        x = np.atleast_2d(np.asarray(features, dtype=float))
+        z = np.nan_to_num((x - self.mean_) / self.std_)
+        return np.exp(self.coef_[0] + z @ self.coef_[1:])
+
+    def cross_fit(self, features: np.ndarray, residual: np.ndarray, groups: np.ndarray) -> np.ndarray:
+        """Out-of-machine scales for the calibration rows; leaves ``self`` fitted on all rows."""
+        g = np.asarray(groups).astype(str)
+        names = np.unique(g)
+        if names.size < 2:
+            raise ValueError("cross-fitting needs at least two calibration machines")
+        out = np.empty(g.shape[0])
+        for name in names:
+            held = g == name
+            part = ResidualScale(self.l2, self.floor).fit(features[~held], residual[~held], g[~held])
+            out[held] = part.scale(features[held])
+        self.fit(features, residual, g)
+        return out
+
+
+@dataclass
 class ExtrapolationScore:
     """Mean distance of a design descriptor to its ``k`` nearest training machines, in units of the training
     machines' own nearest-neighbour distance (1 ≈ as close as training machines are to each other)."""

@@ -23,25 +23,30 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
+from scaletwin_envs.parallel import Executor
 from scaletwin_envs.specs.loader import LoaderSpec
-from scaling.conformal import (
-    ErrorScore,
-    ExtrapolationScore,
-    GroupConformal,
-    InputNovelty,
-    auroc,
-)
+from scaling.conformal import ErrorScore, ExtrapolationScore, GroupConformal, InputNovelty, ResidualScale, auroc
+from scaling.data import SOILS, load_or_generate
 from scaling.delta_dataset import DeltaDataset
 from scaling.evaluation import after_settling, at_rest, in_domain
-from scaling.group_choice import PI1
+from scaling.group_choice import PI1, POSE_GROUPS, choose_groups
 from scaling.groups import PiGroup
 from scaling.models import DeepEnsemble, DeltaModel
-from scaling.product_line import design_descriptor, matched_pairs, nearest_machine, training_pairs
+from scaling.product_line import (
+    LINKAGE_GROUPS,
+    ProductLine,
+    add_design_signals,
+    design_descriptor,
+    matched_pairs,
+    nearest_machine,
+    training_pairs,
+)
 
 #: Rows with F21 below this fraction of the machine's peak are not judged.
 PEAK_FRACTION = 0.05
@@ -75,14 +80,82 @@ class Split:
             raise ValueError("a machine is on two sides of the split")
         if missing := sorted(set().union(*sides) - set(self.specs)):
             raise ValueError(f"no spec for machines {missing}")
+        if len(self.calibration) < 2:
+            raise ValueError(f"need at least two calibration machines (the interval scale is cross-fitted over "
+                             f"them), got {list(self.calibration)}")
         if self.reference not in self.train:
             raise ValueError(f"the reference machine {self.reference!r} must be a training machine")
+
+
+#: The FFNN configuration of the product-line models (the benchmark's and the zoo's).
+PRODUCT_LINE_NET: dict[str, Any] = {"hidden_layers": 3, "units": 64, "lr": 1e-3, "epochs": 200, "threads": 1}
+
+
+def linkage_input_groups(train: pd.DataFrame) -> tuple[PiGroup, ...]:
+    """The product-line input groups: the Eq. (10) groups chosen on the training rows (those with a finite F21),
+    then the pose groups and the linkage groups (:data:`~scaling.product_line.LINKAGE_GROUPS`)."""
+    eq10 = choose_groups(train[np.isfinite(train["F21"].to_numpy(float))], "eq10").inputs
+    return (*eq10, *POSE_GROUPS, *LINKAGE_GROUPS)
+
+
+@dataclass(frozen=True)
+class LeaveMachineOut:
+    """The leave-machine-out layout shared by the benchmark and the product-line checkpoint.
+
+    Training line: the ``reference`` preset plus ``n_train + n_calibration`` machines drawn with ``train_seed``;
+    the first ``n_train`` drawn ones train, the rest calibrate. Test line: ``n_test`` machines drawn with
+    ``test_seed`` (never used for anything else) plus ``test_presets``. Every machine digs every soil of ``soils``
+    at every pile height (m) and holds the loaded bucket still in ``hold_episodes`` episodes.
+    """
+
+    n_train: int = 24
+    n_calibration: int = 16
+    n_test: int = 10
+    soils: tuple[str, ...] = SOILS
+    train_seed: int = 0
+    test_seed: int = 1
+    reference: str = "er12"
+    test_presets: tuple[str, ...] = ("mini", "wa475")
+    pile_heights: tuple[float, ...] = (0.6, 0.8)
+    hold_episodes: int = 4
+
+    def lines(self) -> tuple[ProductLine, ProductLine]:
+        """(training line, test line)."""
+        common = {"soils": self.soils, "pile_heights": self.pile_heights, "hold_episodes": self.hold_episodes}
+        return (ProductLine(n_machines=self.n_train + self.n_calibration, seed=self.train_seed,
+                            presets=(self.reference,), **common),
+                ProductLine(n_machines=self.n_test, seed=self.test_seed, presets=self.test_presets, **common))
+
+    def split(self) -> Split:
+        train_line, test_line = self.lines()
+        drawn = [m.name for m in train_line.machines]
+        return Split(train=(self.reference, *drawn[:self.n_train]), calibration=tuple(drawn[self.n_train:]),
+                     test=(*(m.name for m in test_line.machines), *self.test_presets),
+                     specs={**train_line.specs(), **test_line.specs()}, reference=self.reference)
+
+    def load(self, data_dir: str | Path, executor: str | int | Executor | None = 2,
+             progress: bool = True) -> pd.DataFrame:
+        """Rows of every machine with design signals; recordings in ``data_dir``/train and /test (simulated there
+        when missing: resumable, fanned out through ``executor``)."""
+        frames = []
+        for tag, line in zip(("train", "test"), self.lines(), strict=True):
+            frame = load_or_generate(Path(data_dir) / tag, line.dataset_spec(), executor, progress)
+            frames.append(add_design_signals(frame, line.specs()))
+        return pd.concat(frames, ignore_index=True)
+
+    def to_dict(self) -> dict[str, Any]:
+        train_line, test_line = self.lines()
+        split = self.split()
+        return {"train_line": train_line.to_dict(), "test_line": test_line.to_dict(),
+                "split": {"train": split.train, "calibration": split.calibration, "test": split.test}}
 
 
 @dataclass
 class MachineResult:
     """Per held-out machine and model: errors in % on dynamic and static rows, peak F21 error (dynamic rows),
-    90 % interval coverage, judged rows and the share of them more than 10 % off."""
+    90 % interval coverage (``coverage``: conformal on the learned residual scale, :class:`ResidualScale`;
+    ``coverage_spread``: conformal on the model's own spread, the ensemble's σ or 1), judged rows and the share of
+    them more than 10 % off."""
 
     machine: str
     model: str
@@ -93,15 +166,23 @@ class MachineResult:
     static_median: float
     peak_error: float
     coverage: float
+    coverage_spread: float
     rows: int
     miss_share: float
 
 
 @dataclass
 class GeneralisationResult:
+    """Per (test machine, model) results, the error score's judgement, fit times, and what an artefact built from
+    a model needs: the fitted ``models``, each model's ln δ1 residuals on the calibration machines with the machine
+    of each row (``calibration``), and the feature range of its training pairs (``training_range``: min, max)."""
+
     rows: list[MachineResult]
     extrapolation: dict[str, Any] = field(default_factory=dict)
     fit_seconds: dict[str, float] = field(default_factory=dict)
+    models: dict[str, DeltaModel] = field(default_factory=dict)
+    calibration: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    training_range: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
 
     def frame(self) -> pd.DataFrame:
         return pd.DataFrame([r.__dict__ for r in self.rows])
@@ -157,14 +238,18 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
     output_of: dict[str, PiGroup] = {k: PI1 for k in models}
 
     novelty: dict[str, InputNovelty] = {}
+    training_range: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    calibration: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     for cand in candidates:
         train = pd.concat([training_rows(by_machine[m], (*cand.groups, cand.output)) for m in split.train],
                           ignore_index=True)
         pairs = training_pairs(train, cand.output, cand.groups, n_sources=n_sources, seed=seed)
         say(f"fitting {cand.name} on {len(pairs)} pairs of {len(split.train)} machines")
         start = time.perf_counter()
-        models[cand.name] = cand.build().fit(pairs)
+        model = models[cand.name] = cand.build().fit(pairs)
         fit_seconds[cand.name] = time.perf_counter() - start
+        g = model.features(pairs)
+        training_range[cand.name] = (g.min(axis=0), g.max(axis=0))
         groups_of[cand.name], output_of[cand.name] = cand.groups, cand.output
         novelty[cand.name] = InputNovelty(seed=seed).fit(pairs.pi_target)
     for name in ("direct-Pi (ER12)", "direct-Pi (nearest machine)"):
@@ -185,18 +270,27 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
         pred = pairs.recover(np.exp(log_pred))
         f21 = pairs.target_values()
         features = np.column_stack([np.log(scale), np.log(novelty[name].score(pairs.pi_target)),
-                                    np.abs(log_pred), np.full(len(pairs), np.log(machine_score[target]))])
+                                    np.abs(log_pred), np.full(len(pairs), np.log(machine_score[target])),
+                                    (_kinds(pairs, tgt) == "static").astype(float)])
         return _Predicted(pairs, tgt, log_pred, scale, pred, f21, _errors(pred, f21), features)
 
     calibrators: dict[str, GroupConformal] = {}
+    spread_calibrators: dict[str, GroupConformal] = {}
+    scales: dict[str, ResidualScale] = {}
     error_scores: dict[str, ErrorScore] = {}
     for name in models:
         cal = [predict(name, m) for m in split.calibration]
         grp = np.concatenate([np.full(len(c.err), m) for c, m in zip(cal, split.calibration, strict=True)])
-        calibrators[name] = GroupConformal(0.9).fit(np.concatenate([c.pairs.log_delta - c.log_pred for c in cal]),
-                                                    np.concatenate([c.scale for c in cal]), grp)
-        error_scores[name] = ErrorScore(MISS).fit(np.concatenate([c.features for c in cal]),
-                                                  np.concatenate([c.err for c in cal]), grp)
+        residual = np.concatenate([c.pairs.log_delta - c.log_pred for c in cal])
+        features = np.concatenate([c.features for c in cal])
+        calibration[name] = (residual, grp)
+        spread_calibrators[name] = GroupConformal(0.9).fit(residual, np.concatenate([c.scale for c in cal]), grp)
+        scales[name] = ResidualScale()
+        calibrators[name] = GroupConformal(0.9).fit(residual, scales[name].cross_fit(features, residual, grp), grp)
+        try:
+            error_scores[name] = ErrorScore(MISS).fit(features, np.concatenate([c.err for c in cal]), grp)
+        except ValueError as exc:  # no calibration row missed (or every one did): no risk to learn
+            say(f"{name}: no error score ({exc})")
 
     auroc_rows: dict[str, tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray], list[np.ndarray]]] = {}
     warn_share: dict[str, dict[str, float]] = {}
@@ -204,13 +298,16 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
         say(f"judging {m} (source {source_of[m]})")
         for name in models:
             p = predict(name, m)
-            lo, hi = calibrators[name].interval(p.log_pred, p.scale)
+            lo, hi = calibrators[name].interval(p.log_pred, scales[name].scale(p.features))
             inside = (p.pairs.log_delta >= lo) & (p.pairs.log_delta <= hi)
+            lo, hi = spread_calibrators[name].interval(p.log_pred, p.scale)
+            inside_spread = (p.pairs.log_delta >= lo) & (p.pairs.log_delta <= hi)
             kind = _kinds(p.pairs, p.tgt)
             results.append(_summarise(m, name, source_of[m] if name != "direct-Pi (ER12)" else split.reference,
-                                      p.err, kind, p.pred, p.f21, inside))
-            risk = error_scores[name].score(p.features)
-            warn_share.setdefault(name, {})[m] = float(np.mean(error_scores[name].warns(p.features)))
+                                      p.err, kind, p.pred, p.f21, inside, inside_spread))
+            scorer = error_scores.get(name)
+            risk = scorer.score(p.features) if scorer else np.full(len(p.err), np.nan)
+            warn_share.setdefault(name, {})[m] = float(np.mean(scorer.warns(p.features))) if scorer else float("nan")
             bucket = auroc_rows.setdefault(name, ([], [], [], []))
             bucket[0].append(np.full(len(p.err), machine_score[m]))
             bucket[1].append(p.scale)
@@ -222,26 +319,28 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
         err = _errors(pred, f21)
         label = np.where(at_rest(tgt), "static", "dynamic")
         results.append(_summarise(m, "linkage statics", "-", err, label, pred, f21,
-                                  np.full(len(err), np.nan)))
+                                  np.full(len(err), np.nan), np.full(len(err), np.nan)))
     extrap_out: dict[str, Any] = {
         "threshold": extrap.threshold_, "machine_score": {m: machine_score[m] for m in split.test},
         "warned": {m: bool(machine_score[m] > extrap.threshold_) for m in split.test},
         "auroc_design_distance": {}, "auroc_ensemble_spread": {}, "auroc_error_score": {}, "warn_share": warn_share,
-        "error_score": {name: {"coef": e.coef_.tolist() if e.coef_ is not None else None,
+        "error_score": {name: {"coef": None if e.coef_ is None else e.coef_.tolist(),
                                "threshold": e.threshold_,
                                "features": list(ERROR_FEATURES)} for name, e in error_scores.items()}}
     for name, (dist, spread, risk, miss) in auroc_rows.items():
         y = np.concatenate(miss)
         extrap_out["auroc_design_distance"][name] = auroc(np.concatenate(dist), y)
-        extrap_out["auroc_error_score"][name] = auroc(np.concatenate(risk), y)
+        r = np.concatenate(risk)
+        extrap_out["auroc_error_score"][name] = auroc(r, y) if np.isfinite(r).all() else float("nan")
         if isinstance(models[name], DeepEnsemble):
             extrap_out["auroc_ensemble_spread"][name] = auroc(np.concatenate(spread), y)
-    return GeneralisationResult(results, extrap_out, fit_seconds)
+    fitted = {name: m for name, m in models.items() if m is not None}
+    return GeneralisationResult(results, extrap_out, fit_seconds, fitted, calibration, training_range)
 
 
 #: Columns of the per-row features of the error score (:class:`scaling.conformal.ErrorScore`).
 ERROR_FEATURES = ("ln σ of ln δ1 (ensembles; 0 otherwise)", "ln input novelty", "|ln δ1| predicted",
-                  "ln design distance")
+                  "ln design distance", "bucket at rest (1) or moving (0)")
 
 
 @dataclass
@@ -268,7 +367,7 @@ def _kinds(pairs: DeltaDataset, tgt: pd.DataFrame) -> np.ndarray:
 
 
 def _summarise(machine: str, model: str, source: str, err: np.ndarray, kind: np.ndarray, pred: np.ndarray,
-               f21: np.ndarray, inside: np.ndarray) -> MachineResult:
+               f21: np.ndarray, inside: np.ndarray, inside_spread: np.ndarray) -> MachineResult:
     dig, hold = kind == "dynamic", kind == "static"
 
     def pct(fn: Callable[[np.ndarray], float], mask: np.ndarray) -> float:
@@ -278,6 +377,9 @@ def _summarise(machine: str, model: str, source: str, err: np.ndarray, kind: np.
     peak = float("nan")
     if dig.any():
         peak = 100.0 * abs(float(np.nanmax(pred[dig])) - float(np.max(f21[dig]))) / float(np.max(f21[dig]))
+    def share(x: np.ndarray) -> float:
+        return float(np.nanmean(x)) if np.isfinite(x).any() else float("nan")
+
     return MachineResult(machine, model, source, pct(np.mean, dig), pct(np.median, dig), pct(np.mean, hold),
-                         pct(np.median, hold), peak, float(np.nanmean(inside)) if np.isfinite(inside).any()
-                         else float("nan"), len(err), float(np.mean(err > MISS)))
+                         pct(np.median, hold), peak, share(inside), share(inside_spread), len(err),
+                         float(np.mean(err > MISS)))

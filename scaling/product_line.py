@@ -39,9 +39,6 @@ from scaling.data import SOILS, DatasetSpec
 from scaling.delta_dataset import DeltaDataset, concat_datasets
 from scaling.groups import PiGroup
 
-#: Design signals (all dimensionless) added by :func:`add_design_signals`.
-DESIGN_SIGNALS: dict[str, str] = {"tilt_ratio": "1", "tilt_stroke": "1", "lift_stroke": "1", "fill": "1",
-                                  "F21_linkage": "N"}
 #: π1 normalised by the linkage statics: F21 / (tilt_ratio · |Pf_tilt|), ≈ 1 wherever the massless linkage holds.
 PI1_LINKAGE = PiGroup({"F21": Fraction(1), "F21_linkage": Fraction(-1)}, name="pi1_linkage")
 #: The linkage groups appended by the ``+linkage`` group sets (each a dimensionless variable by itself).
@@ -107,7 +104,8 @@ class ProductLine:
 
 
 def add_design_signals(frame: pd.DataFrame, specs: Mapping[str, LoaderSpec]) -> pd.DataFrame:
-    """``frame`` with :data:`DESIGN_SIGNALS` computed from each row's machine spec and pose.
+    """``frame`` with the design signals (:data:`~scaletwin_envs.signal_units.DESIGN_SIGNAL_UNITS`) computed from
+    each row's machine spec and pose.
 
     Args:
         frame: rows with ``machine``, ``boom_angle``, ``bucket_pitch`` (rad), ``lift_extension``,

@@ -24,8 +24,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     show.add_argument("--json", action="store_true", help="print the whole card as JSON")
     show.set_defaults(func=run_show)
     build = zsub.add_parser("build", help="rebuild the δ1 checkpoints from scratch (data → fit → evaluate)")
-    build.add_argument("--data", default="runs/zoo-data",
-                       help="recordings folder (train/, held_out/); simulated there if missing (default runs/zoo-data)")
+    build.add_argument("--data", default=None,
+                       help="recordings folder (train/, held_out/; with --product-line train/, test/); simulated "
+                            "there if missing (default runs/zoo-data, runs/zoo-product-line)")
+    build.add_argument("--product-line", action="store_true",
+                       help="build the product-line checkpoint statics-pl (zoo.product_line) instead of the paper's")
     build.add_argument("--only", nargs="+", metavar="NAME", help="only these entries (default: all)")
     build.add_argument("--seed", type=int, default=0, help="pipeline seed (default 0)")
     build.add_argument("--out", help="checkpoint root (default: the package's zoo/checkpoints)")
@@ -33,6 +36,28 @@ def register(sub: argparse._SubParsersAction) -> None:
     build.add_argument("--workers", default=None, help="local simulation workers (default: all cores)")
     add_executor_args(build)
     build.set_defaults(func=run_build)
+
+
+def _build_product_line(args: argparse.Namespace) -> int:
+    from zoo.product_line import NAME, ProductLineBuild, build_product_line
+
+    if args.only and list(args.only) != [NAME]:
+        raise CommandError(f"--product-line builds {NAME} only; drop --only")
+    cfg = ProductLineBuild(data_dir=Path(args.data or "runs/zoo-product-line"), seed=args.seed,
+                           executor=executor_from_args(args, args.workers) or 2)
+    if args.out:
+        cfg = replace(cfg, out_root=Path(args.out))
+    if args.registry:
+        cfg = replace(cfg, registry=Path(args.registry))
+    path = build_product_line(cfg)
+    import zoo
+
+    s = zoo.card(path, cfg.registry)["metrics"]["summary"]
+    print(f"{NAME}: {path}\n  held-out drawn machines: F21 error dig {s['dynamic_mape_pct_median']:.1f} % median, "
+          f"{s['dynamic_mape_pct_worst']:.1f} % worst; holds {s['static_mape_pct_median']:.1f} % / "
+          f"{s['static_mape_pct_worst']:.1f} %; 90 % interval coverage {s['interval_coverage_min']:.2f}–"
+          f"{s['interval_coverage_max']:.2f}")
+    return 0
 
 
 def run_list(args: argparse.Namespace) -> int:
@@ -60,8 +85,10 @@ def run_build(args: argparse.Namespace) -> int:
     from zoo.build import BuildConfig, build_zoo
 
     torch.set_num_threads(1)
-    cfg = BuildConfig(data_dir=Path(args.data), seed=args.seed, names=tuple(args.only) if args.only else None,
-                      executor=executor_from_args(args, args.workers))
+    if args.product_line:
+        return _build_product_line(args)
+    cfg = BuildConfig(data_dir=Path(args.data or "runs/zoo-data"), seed=args.seed,
+                      names=tuple(args.only) if args.only else None, executor=executor_from_args(args, args.workers))
     if args.out:
         cfg = replace(cfg, out_root=Path(args.out))
     if args.registry:

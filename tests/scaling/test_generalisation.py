@@ -30,17 +30,20 @@ def frame() -> pd.DataFrame:
 @pytest.fixture(scope="module")
 def split() -> Split:
     names = [m.name for m in LINE.machines]
-    return Split(train=("er12", *names[:3]), calibration=(names[3],), test=tuple(names[4:]), specs=LINE.specs())
+    return Split(train=("er12", *names[:3]), calibration=tuple(names[3:5]), test=tuple(names[5:]),
+                 specs=LINE.specs())
 
 
 def test_split_keeps_machines_apart() -> None:
     specs = LINE.specs()
     with pytest.raises(ValueError, match="two sides"):
-        Split(train=("er12", "pl5-0"), calibration=("pl5-0",), test=(), specs=specs)
+        Split(train=("er12", "pl5-0"), calibration=("pl5-0", "pl5-1"), test=(), specs=specs)
     with pytest.raises(ValueError, match="no spec"):
-        Split(train=("er12",), calibration=(), test=("nowhere",), specs=specs)
+        Split(train=("er12",), calibration=("pl5-0", "pl5-1"), test=("nowhere",), specs=specs)
+    with pytest.raises(ValueError, match="two calibration machines"):
+        Split(train=("er12",), calibration=("pl5-0",), test=(), specs=specs)
     with pytest.raises(ValueError, match="reference"):
-        Split(train=("pl5-0",), calibration=(), test=(), specs=specs)
+        Split(train=("pl5-0",), calibration=("pl5-1", "pl5-2"), test=(), specs=specs)
 
 
 def test_every_held_out_machine_is_judged_against_the_baselines(frame: pd.DataFrame, split: Split) -> None:
@@ -69,6 +72,8 @@ def test_every_held_out_machine_is_judged_against_the_baselines(frame: pd.DataFr
         assert row.rows == int(ok.sum())
         assert 100 * float(np.mean(err[ok] > 0.1)) == pytest.approx(100 * row.miss_share, abs=1e-9)
     assert table["coverage"].dropna().between(0, 1).all()
+    assert table["coverage_spread"].dropna().between(0, 1).all()
+    assert set(result.extrapolation["auroc_error_score"]) == models - {"linkage statics"}
     assert set(result.extrapolation["machine_score"]) == set(split.test)
     assert result.fit_seconds["ffnn"] > 0
 

@@ -4,7 +4,8 @@ Accepted forms of the rows of a machine (source or target):
 
 * a :class:`pandas.DataFrame` (or a CSV/Parquet file, :func:`read_table`) whose columns are either ``name [unit]``
   (e.g. ``F31 [kN]``, ``x_b [mm]``; converted to SI with pint) or plain ``name`` in SI (the units of
-  :data:`scaletwin_envs.signal_units.SIGNAL_UNITS`; a frame's ``attrs["units"]``, as recordings carry, is checked);
+  :data:`scaletwin_envs.signal_units.QUANTITY_UNITS`, the recorded and the design signals; a frame's
+  ``attrs["units"]``, as recordings carry, is checked);
 * a scaletwin :class:`~scaletwin_envs.recording.Recording` (its SI table and units);
 * a mapping ``{name or "name [unit]": value or array}`` (one row per element), a list of such mappings (one per
   row), or a :class:`pandas.Series` (one row);
@@ -29,7 +30,7 @@ import pyarrow.parquet as pq
 from scaletwin_envs.recording.importer import to_si
 from scaletwin_envs.recording.recording import Recording, read_recording
 from scaletwin_envs.recording.schema import METADATA_KEY
-from scaletwin_envs.signal_units import SIGNAL_UNITS
+from scaletwin_envs.signal_units import QUANTITY_UNITS
 
 Rows = (pd.DataFrame | pd.Series | Mapping[str, Any] | Sequence[Mapping[str, Any]] | Recording | np.ndarray
         | Sequence[float])
@@ -49,9 +50,9 @@ def split_header(header: object) -> tuple[str, str | None]:
 
 def si_unit(name: str) -> str:
     """The SI unit of a signal (``"N"`` for ``F31``)."""
-    if name not in SIGNAL_UNITS:
+    if name not in QUANTITY_UNITS:
         raise InputError(f"unknown quantity {name!r}")
-    return SIGNAL_UNITS[name]
+    return QUANTITY_UNITS[name]
 
 
 def header(name: str) -> str:

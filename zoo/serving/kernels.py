@@ -4,7 +4,9 @@ Everything here works on plain arrays in SI with no validation, so that one row 
 
 * :class:`GroupPlan` evaluates the π groups (products of powers of columns) on a raw SI matrix or one row;
 * :class:`Features` turns target group values into the model's generalised log distortions
-  ``g_n = s_n·[asinh(π_n^s/2ε_n) − asinh(π_n^t/2ε_n)]`` (:class:`scaling.factors.LogDistortion`) for a fixed source;
+  ``g_n = s_n·[asinh(π_n^s/2ε_n) − asinh(π_n^t/2ε_n)]`` (:class:`scaling.factors.LogDistortion`) for a fixed source
+  (one row, or one per target row), followed by the source's own ``s_n·asinh(π_n^s/2ε_n)`` for a model fitted with
+  ``include_source=True`` (2k features, as :meth:`LogDistortion.transform`);
 * a kernel maps ``g`` to ln δ1 (and, for the ensemble, its predictive variance): :class:`MLPKernel` (FFNN),
   :class:`EnsembleKernel` (deep ensemble; members stacked for one batched matmul per layer) and :class:`GRUKernel`
   (recurrent; ``step`` carries the hidden state). ``row`` is the single-row NumPy path (float64); ``batch`` runs the
@@ -21,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from scaling.factors import LogDistortion
 from scaling.groups import PiGroup
 from scaling.models import DeepEnsemble, DeltaModel, GRUModel
 from scaling.models.ffnn import FFNN
@@ -68,24 +71,52 @@ class GroupPlan:
 
 @dataclass(frozen=True)
 class Features:
-    """g = s·[asinh(π^s/2ε) − asinh(π^t/2ε)] for the fixed source group values ``pi_source`` (shape (k,) or (n, k))."""
+    """The model inputs of :meth:`scaling.factors.LogDistortion.transform` for fixed source group values.
+
+    With ``h(π) = s·asinh(π/2ε)`` (dimensionless, like the groups π) the features of a target are
+    ``g = h(π^s) − h(π^t)`` (k of them), followed by ``h(π^s)`` itself when the model was fitted with
+    ``include_source=True`` (2k). ``h_source`` holds ``h(π^s)`` of one source row (k,) or of n paired rows (n, k).
+    """
 
     scale: np.ndarray  # 1/(2ε), (k,)
     sign: np.ndarray  # s_n, (k,)
     h_source: np.ndarray  # s·asinh(π^s/2ε), (k,) or (n, k)
+    include_source: bool = False  # append h_source to g (the transform's include_source)
 
     @classmethod
-    def build(cls, eps: np.ndarray, sign: np.ndarray, pi_source: np.ndarray) -> Features:
-        scale = 0.5 / np.asarray(eps, dtype=float)
-        sign = np.asarray(sign, dtype=float)
-        return cls(scale, sign, sign * np.arcsinh(np.asarray(pi_source, dtype=float) * scale))
+    def build(cls, transform: LogDistortion, pi_source: np.ndarray) -> Features:
+        """The features of a fitted ``transform`` (its ε, s and ``include_source``) for source group values
+        ``pi_source`` (k,) or (n, k)."""
+        if transform.eps is None or transform.sign is None:
+            raise ValueError("the model's feature transform is not fitted")
+        scale = 0.5 / np.asarray(transform.eps, dtype=float)
+        unbound = cls(scale, np.asarray(transform.sign, dtype=float), np.empty(0), bool(transform.include_source))
+        return unbound.with_source(pi_source)
+
+    def h(self, pi: np.ndarray) -> np.ndarray:
+        """``s·asinh(π/2ε)`` of group values ``pi`` (k,) or (n, k)."""
+        return self.sign * np.arcsinh(pi * self.scale)
 
     def __call__(self, pi_target: np.ndarray) -> np.ndarray:
-        return self.h_source - self.sign * np.arcsinh(pi_target * self.scale)
+        """Features of target group values (k,) or (n, k): shape (k,)/(n, k), or (2k,)/(n, 2k) with the source."""
+        g = self.h_source - self.sign * np.arcsinh(pi_target * self.scale)
+        if not self.include_source:
+            return g
+        return np.concatenate([g, np.broadcast_to(self.h_source, g.shape)], axis=-1)
+
+    @property
+    def n_features(self) -> int:
+        """Number of model inputs: k, or 2k with the source's own features."""
+        k = len(self.scale)
+        return 2 * k if self.include_source else k
 
     def rows(self, start: int, stop: int) -> Features:
         """The features of paired sources ``start:stop`` (``h_source`` of shape (n, k))."""
-        return Features(self.scale, self.sign, self.h_source[start:stop])
+        return Features(self.scale, self.sign, self.h_source[start:stop], self.include_source)
+
+    def with_source(self, pi_source: np.ndarray) -> Features:
+        """The same transform for other source group values ``pi_source`` (k,) or (n, k)."""
+        return Features(self.scale, self.sign, self.h(np.asarray(pi_source, dtype=float)), self.include_source)
 
 
 class MLPKernel(SingleNet):

@@ -15,6 +15,13 @@ raise an :class:`ExtrapolationWarning` (the prediction is still returned, flagge
 Three paths share the same arithmetic: :meth:`ScalingModel.scale_force` (any table with units, batch),
 :meth:`ScalingModel.predict_row` (one row as floats in SI, the lean path) and :meth:`ScalingModel.stream`
 (row by row with the GRU's hidden state carried; see :mod:`zoo.serving.stream`).
+
+Models fitted with ``include_source=True`` (e.g. the product-line models of :mod:`scaling.product_line`, trained on
+one matched source row per target row) also take the source's own features ``s_n·asinh(π_n^s/2ε_n)``: the served
+features are then 2k wide, as are the card's training range, and each target row is best given its own source row
+(n source rows for n targets in the batch path, ``source=`` on the row path). Such a model learnt δ1 as a function
+of the source too, so a source other than the reference raises no :class:`SourceWarning`; a source outside the
+training range of the source features flags the rows as extrapolated instead.
 """
 
 from __future__ import annotations
@@ -30,7 +37,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import pandas as pd
 
-from scaling.factors import scaled_variable
+from scaling.factors import LogDistortion, scaled_variable
 from scaling.fitted import STATIC_STEPS, model_groups
 from scaling.groups import PiGroup
 from scaling.models import DeltaModel
@@ -57,7 +64,8 @@ class ExtrapolationWarning(UserWarning):
 
 class SourceWarning(UserWarning):
     """The source row differs from the calibrated reference row the model learnt δ1 against (``model.reference``):
-    δ1 = π1(source)/π1(target) was only ever learnt for that source, so predictions from another one are biased."""
+    δ1 = π1(source)/π1(target) was only ever learnt for that source, so predictions from another one are biased.
+    Never raised for models fitted with ``include_source=True``, which take the source's features as inputs."""
 
 
 @dataclass
@@ -116,6 +124,14 @@ class ScalingModel:
         self._has_rest = bool(rest)
         self._plan_s = GroupPlan.build([*inputs, output], self.source_variables)
         self.kernel = kernel_for(model)
+        transform = model.transform_
+        if transform is None:
+            raise ValueError(f"{model.name} is not fitted")
+        self._transform: LogDistortion = transform
+        names = [g.expression() for g in inputs]
+        self._group_names = names
+        # one name per feature: the distortions g_n, then (include_source) the source's own features
+        self._feature_names = names + ([f"{n} of the source" for n in names] if transform.include_source else [])
         interval = card["interval"]
         self.coverage = float(interval["coverage"])
         self.interval_method = str(interval["method"])
@@ -123,9 +139,13 @@ class ScalingModel:
                            for c, q in interval.get("log_delta_residual_quantiles", {}).items()}
         rng = card["training_range"]
         g_min, g_max = np.asarray(rng["min"], dtype=float), np.asarray(rng["max"], dtype=float)
+        n_features = transform.n_features(len(inputs))
+        if g_min.shape != (n_features,) or g_max.shape != (n_features,):
+            raise ValueError(f"training_range min/max have shapes {g_min.shape}/{g_max.shape}; the model takes "
+                             f"{n_features} features ({len(inputs)} groups"
+                             f"{' and their source values' if transform.include_source else ''})")
         self._margin = float(rng.get("margin", 0.0)) * (g_max - g_min)
         self._g_lo, self._g_hi = g_min - self._margin, g_max + self._margin
-        self._group_names = [g.expression() for g in inputs]
         self._row_spread = self._spread(None)
         self._h_reference: np.ndarray | None = None
         self.bind(self.reference)
@@ -147,6 +167,11 @@ class ScalingModel:
         src = self.card["source"]
         return pd.Series({k: float(v) for k, v in src["row"].items()}, name=src.get("index"))
 
+    @property
+    def include_source(self) -> bool:
+        """Whether the model takes the source's own features too (fitted with ``include_source=True``)."""
+        return self._transform.include_source
+
     def bind(self, source: Rows) -> ScalingModel:
         """Use ``source`` (one row, or n rows paired with n targets) as the source from now on; returns self."""
         x = to_matrix(source, self.source_variables, "source")
@@ -155,28 +180,44 @@ class ScalingModel:
         if not (np.all(np.isfinite(vals)) and np.all(pi1 > 0)):
             raise InputError(f"source: groups must be finite and π1 = {self.output_group.expression()} > 0; got "
                              f"π1 = {pi1[:3].tolist()}")
-        eps = self.model.transform_.eps
-        sign = self.model.transform_.sign
         one = len(x) == 1
-        self._features = Features.build(eps, sign, vals[0, :-1] if one else vals[:, :-1])
+        self._features = Features.build(self._transform, vals[0, :-1] if one else vals[:, :-1])
         self._pi1_source = float(pi1[0]) if one else pi1
         self._n_source = len(x)
         if self._h_reference is not None:
-            self._check_source(vals)
+            self._check_source(np.atleast_2d(self._features.h_source), pi1)
         return self
 
-    def _check_source(self, vals: np.ndarray) -> None:
-        """Warn when a source's groups differ from the reference's (features beyond the range margin, π1 by 0.1 %)."""
-        h = np.atleast_2d(self._features.h_source)
-        tol = self._margin
-        off = (np.abs(h - self._h_reference) > tol).any(axis=0)
-        pi1_off = np.abs(vals[:, -1] / self._pi1_reference - 1.0) > 1e-3
+    def _check_source(self, h: np.ndarray, pi1: np.ndarray, stacklevel: int = 4) -> None:
+        """Warn when sources (features ``h`` (n, k) = s·asinh(π^s/2ε), π1 (n,)) differ from the reference's
+        (features beyond the range margin, π1 by 0.1 %); never for an ``include_source`` model."""
+        if self.include_source:
+            return
+        off = (np.abs(h - self._h_reference) > self._margin).any(axis=0)
+        pi1_off = np.abs(pi1 / self._pi1_reference - 1.0) > 1e-3
         if off.any() or pi1_off.any():
             names = [n for n, o in zip(self._group_names, off, strict=True) if o] + (["π1"] if pi1_off.any() else [])
             warnings.warn(f"{self.name}: the source differs from the calibrated reference row the model was trained "
                           f"against (model.reference; groups {', '.join(names)}): δ1 was learnt relative to that row "
                           "only, so predictions from this source are biased; pass source=None to use it",
-                          SourceWarning, stacklevel=4)
+                          SourceWarning, stacklevel=stacklevel)
+
+    def _row_source(self, source: Sequence[float]) -> tuple[Features, float]:
+        """(features, π1) of one source row given as SI floats in :attr:`source_variables` order (row path)."""
+        if len(source) != len(self.source_variables):
+            raise InputError(f"a source row needs {len(self.source_variables)} SI values "
+                             f"({', '.join(self.source_variables)}), got {len(source)}")
+        try:
+            vals = self._plan_s.row(source)
+        except ZeroDivisionError:
+            raise InputError("source row: a divisor (e.g. F31 or y_b) is 0") from None
+        pi1 = vals[-1]
+        if not (all(math.isfinite(v) for v in vals) and pi1 > 0):
+            raise InputError(f"source row: groups must be finite and π1 = {self.output_group.expression()} > 0; "
+                             f"got π1 = {pi1}")
+        features = self._features.with_source(np.array(vals[:-1]))
+        self._check_source(features.h_source[None], np.array([pi1]), stacklevel=5)
+        return features, pi1
 
     def nearest_source_row(self, rows: Rows) -> int:
         """Position of the row of ``rows`` (e.g. a whole source recording) closest to :attr:`reference` in the
@@ -186,7 +227,7 @@ class ScalingModel:
         ok = np.all(np.isfinite(vals), axis=1) & (vals[:, -1] > 0)
         if not ok.any():
             raise InputError("source: no row has finite groups and π1 > 0")
-        h = self._features.sign * np.arcsinh(vals[:, :-1] * self._features.scale)
+        h = self._features.h(vals[:, :-1])
         dist = np.where(ok, np.max(np.abs(h - self._h_reference), axis=1), np.inf)
         return int(np.argmin(dist))
 
@@ -291,7 +332,8 @@ class ScalingModel:
         return self._pi1_source if self._n_source == 1 else self._pi1_source[start:stop]
 
     def _features_of(self, x: np.ndarray, start: int) -> tuple[np.ndarray, np.ndarray]:
-        """(distortion features g, rest of π1) of target rows ``x`` (rows ``start``… of the batch)."""
+        """(features, rest of π1) of target rows ``x`` (rows ``start``… of the batch); the features are the k
+        distortions g, followed by the k source features for an ``include_source`` model (:class:`Features`)."""
         vals = self._plan_t.values(x)
         bad = ~np.all(np.isfinite(vals), axis=1)
         if bad.any():
@@ -317,11 +359,13 @@ class ScalingModel:
 
     # ------------------------------------------------------------------------------------------------ one row
 
-    def predict_row(self, x: Sequence[float]) -> tuple[float, float, float]:
+    def predict_row(self, x: Sequence[float], source: Sequence[float] | None = None) -> tuple[float, float, float]:
         """(force, lower, upper) for one target row given as SI floats in :attr:`target_variables` order.
 
         The lean path for a live loop: no pandas and no unit handling. Feed-forward models only (use
-        :meth:`stream` for recurrent ones, which carries the hidden state).
+        :meth:`stream` for recurrent ones, which carries the hidden state). ``source``: this row's own source row
+        as SI floats in :attr:`source_variables` order (e.g. its matched row for an ``include_source`` model);
+        default the bound source (one row).
 
         Raises:
             InputError: the row gives a non-finite result (NaN input, a zero divisor).
@@ -329,19 +373,27 @@ class ScalingModel:
         """
         if self.recurrent:
             raise TypeError(f"{self.name} is recurrent: use model.stream() to carry its hidden state row to row")
-        return self.row(x, None)[:3]
+        return self.row(x, None, source)[:3]
 
-    def row(self, x: Sequence[float], state: Any) -> tuple[float, float, float, float, bool, Any]:
+    def row(self, x: Sequence[float], state: Any,
+            source: Sequence[float] | None = None) -> tuple[float, float, float, float, bool, Any]:
         """(force, lower, upper, δ1, extrapolated, next state) for one SI row; ``state`` is the GRU hidden state
-        (``None`` for feed-forward models). Used by :meth:`predict_row` and :class:`~zoo.serving.stream.Stream`."""
-        if self._n_source != 1:
-            raise InputError("row by row serving needs a single source row (bind one with model.bind)")
+        (``None`` for feed-forward models), ``source`` this row's own source row (SI floats in
+        :attr:`source_variables` order; default the bound source, which must then be one row). Used by
+        :meth:`predict_row` and :class:`~zoo.serving.stream.Stream`."""
+        if source is not None:
+            features, pi1 = self._row_source(source)
+        elif self._n_source != 1:
+            raise InputError("row by row serving needs a single source row (bind one with model.bind, or pass the "
+                             "row's own source)")
+        else:
+            features, pi1 = self._features, self._pi1_source
         try:
             vals = self._plan_t.row(x)
         except ZeroDivisionError:
             raise InputError("target row: a divisor (e.g. F31 or y_b) is 0") from None
         rest = vals[-1] if self._has_rest else 1.0
-        g = self._features(np.array(vals[:-1]))
+        g = features(np.array(vals[:-1]))
         kernel = self.kernel
         var = 0.0
         if isinstance(kernel, GRUKernel):
@@ -359,7 +411,6 @@ class ScalingModel:
         outside = bool((g < self._g_lo).any() or (g > self._g_hi).any())
         if outside:
             self._warn(g[None], 1, 1)
-        pi1 = self._pi1_source
         ie = self._inv_exp
         try:
             force = float((pi1 / math.exp(mu) / rest) ** ie)
@@ -406,7 +457,7 @@ class ScalingModel:
     def _warn(self, g_out: np.ndarray, n_out: int, n: int) -> None:
         below, above = (g_out < self._g_lo).any(axis=0), (g_out > self._g_hi).any(axis=0)
         groups = [f"{name} ({'below' if lo else ''}{'/' if lo and hi else ''}{'above' if hi else ''})"
-                  for name, lo, hi in zip(self._group_names, below, above, strict=True) if lo or hi]
+                  for name, lo, hi in zip(self._feature_names, below, above, strict=True) if lo or hi]
         warnings.warn(f"{self.name}: {n_out} of {n} target rows have distortions outside the training range "
                       f"(groups {', '.join(groups)}); the scaled {self.variable} is extrapolated",
                       ExtrapolationWarning, stacklevel=4)

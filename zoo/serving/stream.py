@@ -60,10 +60,16 @@ class Stream:
         self.state: Any = None
         self.step = 0
 
-    def push(self, row: Mapping[str, Any] | Sequence[float] | np.ndarray) -> Prediction:
-        """Predict one target row (the next time step of the sequence); see the module docstring for ``row``."""
+    def push(self, row: Mapping[str, Any] | Sequence[float] | np.ndarray,
+             source: Sequence[float] | np.ndarray | None = None) -> Prediction:
+        """Predict one target row (the next time step of the sequence); see the module docstring for ``row``.
+
+        ``source``: this row's own source row as SI floats in ``model.source_variables`` order (e.g. its matched
+        row, for a model fitted with ``include_source=True``); default the model's bound source.
+        """
         x = self._values(row)
-        force, lo, hi, delta, outside, self.state = self.model.row(x, self.state)
+        src = None if source is None else [float(v) for v in source]
+        force, lo, hi, delta, outside, self.state = self.model.row(x, self.state, src)
         pred = Prediction(force, lo, hi, delta, outside, self.step)
         self.step += 1
         if self._rec is not None:

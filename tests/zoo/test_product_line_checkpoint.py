@@ -1,0 +1,108 @@
+"""The product-line checkpoint: built on a tiny line, its card reports every held-out machine, it serves what the
+fitted model predicts on matched source rows, and its interval is the calibration machines' residual quantile."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import zoo
+from scaling.conformal import group_weighted_quantile
+from scaling.delta_dataset import DeltaDataset
+from scaling.fitted import model_groups
+from scaling.generalisation import LeaveMachineOut, judged_rows
+from scaling.models import load_model
+from scaling.product_line import PI1_LINKAGE, match_rows, nearest_machine
+from zoo.product_line import NAME, ProductLineBuild, build_product_line
+
+TINY = LeaveMachineOut(n_train=3, n_calibration=2, n_test=1, soils=("gravel",), test_presets=("mini",),
+                       pile_heights=(0.7,), hold_episodes=1)
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, ProductLineBuild]:
+    root = tmp_path_factory.mktemp("pl")
+    registry = root / "registry.json"
+    registry.write_text(json.dumps({"format_version": 1, "checkpoints": {}}))
+    cfg = ProductLineBuild(data_dir=root / "data", layout=TINY, out_root=root / "checkpoints", registry=registry,
+                           progress=False, net={"hidden_layers": 1, "units": 16, "lr": 1e-3, "epochs": 30,
+                                                "threads": 1})
+    return build_product_line(cfg), registry, cfg
+
+
+def test_card_reports_every_held_out_machine(built: tuple[Path, Path, ProductLineBuild]) -> None:
+    _, registry, cfg = built
+    card = zoo.card(NAME, registry)
+    split = cfg.layout.split()
+    metrics = card["metrics"]["held_out_machines"]
+    assert set(metrics) == set(split.test) == {"pl1-0", "mini"}
+    for m in metrics.values():
+        assert m["rows"] > 0 and 0 <= m["interval_coverage"] <= 1
+        assert np.isfinite(m["dynamic_mape_pct"]) and np.isfinite(m["direct_pi_dynamic_mape_pct"])
+    assert card["training"]["machines"] == list(split.train)
+    assert card["training"]["calibration_machines"] == list(split.calibration)
+    assert not set(card["training"]["machines"]) & set(metrics)  # no held-out machine was trained on
+    assert card["training"]["model"]["config"]["include_source"] is True
+
+
+def test_interval_is_the_calibration_machines_quantile(built: tuple[Path, Path, ProductLineBuild]) -> None:
+    """The card's 90 % residual interval is the group-weighted 5 % / 95 % quantile of ln δ1 residuals of the
+    model on matched rows of the calibration machines (recomputed here from the recordings)."""
+    path, _, cfg = built
+    card = zoo.card(path)
+    model = load_model(path)
+    frame = cfg.layout.load(cfg.data_dir, executor="serial", progress=False)
+    split = cfg.layout.split()
+    res, grp = [], []
+    by = {m: g.reset_index(drop=True) for m, g in frame.groupby("machine")}
+    for m in split.calibration:
+        src = nearest_machine(split.specs[m], {t: split.specs[t] for t in split.train})
+        tgt = by[m][judged_rows(by[m])].reset_index(drop=True)
+        pairs = DeltaDataset.from_matched(by[src].iloc[match_rows(by[src], tgt)], tgt, PI1_LINKAGE,
+                                          model_groups(model)[1])
+        res.append(pairs.log_delta - model.predict_log(pairs))
+        grp.append(np.full(len(pairs), m))
+    r, g = np.concatenate(res), np.concatenate(grp)
+    lo, hi = card["interval"]["log_delta_residual_quantiles"]["0.9"]
+    assert hi == pytest.approx(group_weighted_quantile(r, g, 0.95), rel=1e-6)
+    assert lo == pytest.approx(-group_weighted_quantile(-r, g, 0.95), rel=1e-6)
+
+
+def test_served_model_predicts_on_matched_source_rows(built: tuple[Path, Path, ProductLineBuild]) -> None:
+    """Loaded by name, with one matched source row per target row, the served δ1 equals the fitted model's on the
+    same pairs; the target needs no F21 (drop it and the answer is the same)."""
+    path, registry, cfg = built
+    served = zoo.load(NAME, registry)
+    model = load_model(path)
+    frame = cfg.layout.load(cfg.data_dir, executor="serial", progress=False)
+    src = frame[frame["machine"] == "er12"].reset_index(drop=True)
+    tgt = frame[frame["machine"] == "pl1-0"].reset_index(drop=True)
+    tgt = tgt[judged_rows(tgt)].reset_index(drop=True)
+    groups = model_groups(model)[1]
+    ok = np.isfinite(np.column_stack([g.evaluate(tgt).reshape(-1) for g in (*groups, PI1_LINKAGE)])).all(axis=1)
+    tgt = tgt[ok].reset_index(drop=True)
+    source = src.iloc[match_rows(src, tgt)].reset_index(drop=True)
+    out = served.scale_force(source, tgt.drop(columns=["F21"]))
+    pairs = DeltaDataset.from_matched(source, tgt, PI1_LINKAGE, groups)
+    assert len(pairs) == len(tgt)
+    np.testing.assert_allclose(out.delta1, model.predict(pairs), rtol=1e-5)
+    np.testing.assert_allclose(out.force, pairs.recover(model.predict(pairs)), rtol=1e-5)
+    assert np.all(out.lower <= out.force) and np.all(out.force <= out.upper)
+    with pytest.raises(ValueError, match="F21_linkage"):
+        served.scale_force(source, tgt.drop(columns=["F21_linkage"]))
+
+
+def test_rebuild_is_deterministic(built: tuple[Path, Path, ProductLineBuild], tmp_path: Path) -> None:
+    """Same data and seed: the same weights (the weights file's hash on the card)."""
+    path, _, cfg = built
+    registry = tmp_path / "registry.json"
+    registry.write_text(json.dumps({"format_version": 1, "checkpoints": {}}))
+    again = build_product_line(replace(cfg, out_root=tmp_path / "checkpoints", registry=registry))
+    first, second = zoo.card(path)["files"], zoo.card(again)["files"]
+    assert first["weights.safetensors"] == second["weights.safetensors"]
+    assert pd.read_csv(path / "check.csv").equals(pd.read_csv(again / "check.csv"))

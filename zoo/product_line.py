@@ -1,0 +1,195 @@
+"""The product-line δ1 checkpoint ``statics-pl``: F21 of a machine of *another design*, from any calibrated one.
+
+The paper's checkpoints (:mod:`zoo.build`) learnt δ1 on the ER12 and the WA475, one layout at two sizes. This one is
+trained across a sampled product line (:class:`scaling.generalisation.LeaveMachineOut`: the ER12 and 24 drawn
+machines that differ in linkage, hydraulics, masses, bucket and traction), on matched (source, target) row pairs,
+so any calibrated machine of the line can be the source. Its output group is π1 = F21 / F21_linkage (F21 over the
+pin force of the massless linkage at the measured tilt-cylinder force and pose), its inputs the Eq. (10) groups,
+the pose and the linkage's design signals (:func:`scaling.product_line.add_design_signals`), source and target
+values both.
+
+Its card says what the leave-machine-out proof measured: per held-out machine (drawn with another seed, never
+used in training or calibration, plus the ``mini`` and ``wa475`` presets) the F21 error on dig and hold rows,
+the peak error and the coverage of the card's interval; the interval is the group-weighted quantile of ln δ1
+residuals over the 16 calibration machines (every machine weighing the same), so it is calibrated for "a new
+machine of the line", not for rows of machines the model saw.
+
+How to use it: compute the design signals of both machines from their specs, pair every target row with its
+matched source row (:func:`scaling.product_line.match_rows`: same kind, nearest in pose and fill) and pass the
+paired rows (``model.scale_force(source.iloc[idx], target)``); see ``examples/scale_product_line.py``.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from scaletwin_envs.signal_units import QUANTITY_UNITS
+from scaling.conformal import group_weighted_quantile
+from scaling.data import dataset_hash
+from scaling.evaluation import at_rest
+from scaling.fitted import model_groups
+from scaling.generalisation import (
+    PRODUCT_LINE_NET,
+    Candidate,
+    GeneralisationResult,
+    LeaveMachineOut,
+    evaluate,
+    judged_rows,
+    linkage_input_groups,
+)
+from scaling.models import FFNN
+from scaling.product_line import PI1_LINKAGE
+from scaling.provenance import code_version, machine, to_jsonable
+from scaling.provenance import versions as scaling_versions
+from zoo.build import COVERAGES, RANGE_MARGIN
+from zoo.registry import REGISTRY_PATH, ZOO_ROOT, register
+from zoo.scaling_kind import save_scaling_model
+from zoo.serving.model import served_variables
+
+NAME = "statics-pl"
+SUMMARY = ("δ1 FFNN across a sampled product line (linkage, hydraulics, masses, bucket, traction differ), π1 = "
+           "F21/F21_linkage, matched source rows: F21 of a machine of another design from any calibrated one; "
+           "interval calibrated on held-out machines.")
+DELTA_CONVENTION = ("source = a calibrated machine of the product line, one matched row per target row (same kind, "
+                    "nearest in boom angle, bucket pitch and fill: scaling.product_line.match_rows); target = the "
+                    "machine to predict; δ1 = π1(source)/π1(target), π1 = F21/F21_linkage, and F21_target = "
+                    "F21_linkage_target · π1(source) / δ1. F21_linkage = tilt_ratio · |Pf_tilt| follows from the "
+                    "target's drawing, pose and tilt-cylinder force (scaling.product_line.add_design_signals).")
+
+
+@dataclass(frozen=True)
+class ProductLineBuild:
+    """What :func:`build_product_line` builds; ``data_dir`` holds ``train/`` and ``test/`` recordings (simulated
+    there when missing, resumable). The ``check`` machine's first dig cycle becomes the checkpoint's check set."""
+
+    data_dir: Path = Path("runs/zoo-product-line")
+    layout: LeaveMachineOut = field(default_factory=LeaveMachineOut)
+    seed: int = 0
+    coverage: float = 0.9
+    check: str = "pl1-0"
+    out_root: Path = ZOO_ROOT / "checkpoints"
+    registry: Path = REGISTRY_PATH
+    executor: str | int | None = 2
+    progress: bool = True
+    net: dict[str, Any] = field(default_factory=lambda: dict(PRODUCT_LINE_NET))
+
+
+def build_product_line(cfg: ProductLineBuild | None = None) -> Path:
+    """Simulate/load the line, fit, judge on held-out machines, write and register ``statics-pl``; its directory."""
+    cfg = cfg or ProductLineBuild()
+    say = print if cfg.progress else (lambda _msg: None)
+    start = time.perf_counter()
+    frame = cfg.layout.load(cfg.data_dir, cfg.executor, cfg.progress)
+    split = cfg.layout.split()
+    groups = linkage_input_groups(frame[frame["machine"].isin(split.train)])
+    candidate = Candidate(NAME, lambda: FFNN(**cfg.net, seed=cfg.seed, include_source=True), groups, PI1_LINKAGE)
+    result = evaluate(frame, split, [candidate], seed=cfg.seed, progress=say)
+    model = result.models[NAME]
+    by_machine = {str(m): g.reset_index(drop=True) for m, g in frame.groupby(frame["machine"].astype(str))}
+    reference = reference_row(by_machine[split.reference], groups)
+    check = check_rows(by_machine[cfg.check], groups)
+    fields = card_fields(model, result, reference, check, frame, cfg)
+    fields["training"]["build_s"] = time.perf_counter() - start
+    path = save_scaling_model(model, Path(cfg.out_root) / NAME, to_jsonable(fields), check, overwrite=True)
+    register(NAME, path, SUMMARY, cfg.registry)
+    return path
+
+
+def reference_row(source: pd.DataFrame, groups: tuple[Any, ...]) -> pd.Series:
+    """The card's default source: the source machine's judged hold row at rest with the median fill (SI)."""
+    rows = source[judged_rows(source) & at_rest(source)]
+    finite = np.isfinite(np.column_stack([g.evaluate(rows).reshape(-1) for g in (*groups, PI1_LINKAGE)])).all(axis=1)
+    rows = rows[finite]
+    if rows.empty:
+        raise ValueError("the reference machine has no judged rows at rest with finite groups")
+    return rows.iloc[int(np.argsort(rows["fill"].to_numpy(float))[len(rows) // 2])]
+
+
+def check_rows(target: pd.DataFrame, groups: tuple[Any, ...]) -> pd.DataFrame:
+    """The check set: the first dig cycle of the check machine (judged rows with finite groups), with the target
+    quantities the model serves (SI); its source is the card's reference row."""
+    digs = target[(target["kind"] == "dig") & judged_rows(target)]
+    rows = digs[digs["episode"] == digs["episode"].min()]
+    finite = np.isfinite(np.column_stack([g.evaluate(rows).reshape(-1) for g in (*groups, PI1_LINKAGE)])).all(axis=1)
+    _, target_vars = served_variables(PI1_LINKAGE, groups, "F21")
+    return rows[finite][["machine", "episode", "t", *target_vars]].reset_index(drop=True)
+
+
+def card_fields(model: FFNN, result: GeneralisationResult, reference: pd.Series, check: pd.DataFrame,
+                frame: pd.DataFrame, cfg: ProductLineBuild) -> dict[str, Any]:
+    """Everything the card says (see :mod:`zoo.scaling_kind`)."""
+    assert model.groups_ is not None
+    inputs = tuple(model_groups(model)[1])
+    source_vars, target_vars = served_variables(PI1_LINKAGE, inputs, "F21")
+    residual, machines = result.calibration[NAME]
+    quantiles = {str(c): [-group_weighted_quantile(-residual, machines, (1 + c) / 2),
+                          group_weighted_quantile(residual, machines, (1 + c) / 2)] for c in COVERAGES}
+    lo, hi = result.training_range[NAME]
+    table = result.frame()
+    ours = table[table["model"] == NAME].set_index("machine")
+    base = table[table["model"] == "direct-Pi (nearest machine)"].set_index("machine")
+    per_machine = {m: {"source": r.source, "dynamic_mape_pct": r.dynamic_mape, "static_mape_pct": r.static_mape,
+                       "peak_error_pct": r.peak_error, "interval_coverage": r.coverage_spread, "rows": r.rows,
+                       "rows_over_10pct": r.miss_share,
+                       "direct_pi_dynamic_mape_pct": float(base.loc[m, "dynamic_mape"]),
+                       "direct_pi_static_mape_pct": float(base.loc[m, "static_mape"]),
+                       "error_score_warned_share": result.extrapolation["warn_share"][NAME][m]}
+                   for m, r in ours.iterrows()}
+    drawn = ours.drop(index=list(cfg.layout.test_presets), errors="ignore")
+    split = cfg.layout.split()
+    return {
+        "name": NAME,
+        "description": SUMMARY,
+        "predicts": {"variable": "F21", "unit": "N",
+                     "quantity": "F21: magnitude of the force on the bucket at its pin to link B (N)",
+                     "model_output": "δ1 = π1(source)/π1(target), π1 = F21/F21_linkage",
+                     "equation": "F21_target = F21_linkage_target · π1(source) / δ1"},
+        "delta_convention": DELTA_CONVENTION,
+        "groups": {"set": "eq10+pose+linkage", **model.groups_},
+        "source": {"machine": split.reference, "index": int(reference.name),
+                   "selection": "the ER12's hold row at rest with the median fill (zoo.product_line.reference_row); "
+                                "a default only: pass matched rows of your calibrated machine",
+                   "row": {k: float(reference[k]) for k in source_vars},
+                   "variables": source_vars, "units": {k: QUANTITY_UNITS[k] for k in source_vars}},
+        "inputs": [{"name": k, "unit": QUANTITY_UNITS[k]} for k in target_vars],
+        "interval": {"method": "residual-quantiles", "coverage": cfg.coverage,
+                     "log_delta_residual_quantiles": quantiles,
+                     "calibration": f"ln δ1 residuals on the {len(split.calibration)} calibration machines "
+                                    "(held out of training), every machine weighing the same: split conformal over "
+                                    "machines (scaling.conformal.group_weighted_quantile)",
+                     "description": "δ1·exp(q) for the residual quantiles q, mapped to F21 (bounds swap)"},
+        "training_range": {"feature": "g_n = s_n·[asinh(π_n^s/2ε_n) − asinh(π_n^t/2ε_n)], then s_n·asinh(π_n^s/2ε_n) "
+                                      "(include_source), on the training pairs",
+                           "groups": [g.expression() for g in inputs], "min": lo, "max": hi, "margin": RANGE_MARGIN,
+                           "rule": "a target row is extrapolated when any feature lies outside [min − margin·span, "
+                                   "max + margin·span], span = max − min"},
+        "training": {"layout": cfg.layout.to_dict(), "machines": list(split.train),
+                     "calibration_machines": list(split.calibration), "units": "SI (N, m, kg, s, rad)",
+                     "data_hash": dataset_hash(frame.drop(columns=["episode_key"])),
+                     "model": {"class": "FFNN", "config": model.get_config()}, "seed": cfg.seed,
+                     "fit_s": result.fit_seconds[NAME], "code_version": code_version(),
+                     "command": "scaletwin zoo build --product-line (zoo.product_line.build_product_line)",
+                     "machine": machine(), "package_versions": scaling_versions()},
+        "metrics": {
+            "held_out_machines": per_machine,
+            "summary": {"drawn_test_machines": len(drawn),
+                        "dynamic_mape_pct_median": float(drawn["dynamic_mape"].median()),
+                        "dynamic_mape_pct_worst": float(drawn["dynamic_mape"].max()),
+                        "static_mape_pct_median": float(drawn["static_mape"].median()),
+                        "static_mape_pct_worst": float(drawn["static_mape"].max()),
+                        "interval_coverage_min": float(drawn["coverage_spread"].min()),
+                        "interval_coverage_max": float(drawn["coverage_spread"].max()),
+                        "error_score_auroc": result.extrapolation["auroc_error_score"][NAME]},
+            "note": "machines never trained on nor used for calibration (drawn with another seed, plus the mini and "
+                    "wa475 presets); rows after start-up settling with F21 > 5 % of the machine's peak; dynamic = "
+                    "dig cycles and moves, static = bucket held still; source = the nearest training machine by "
+                    "design, matched rows (scaling.generalisation)",
+            "check_set": {"file": "check.csv", "rows": len(check), "machine": cfg.check},
+        },
+    }
