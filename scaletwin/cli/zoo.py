@@ -112,14 +112,30 @@ def scaling_rows(card: dict[str, Any]) -> list[tuple[str, str]]:
     if card.get("kind") != "scaling-model":
         return []
     groups, metrics, training = card["groups"], card["metrics"], card["training"]
+    common = [("predicts", card["predicts"]["equation"]),
+              ("groups", f"{groups['set']}: π1 = {groups['output']['expression']}; inputs "
+                         + ", ".join(g["expression"] for g in groups["inputs"])),
+              ("inputs", ", ".join(f"{d['name']} [{d['unit']}]" for d in card["inputs"])),
+              ("interval", f"{card['interval']['method']} at {card['interval']['coverage']:.0%}")]
+    if "held_out_episodes" not in metrics:  # a product-line card (zoo.product_line)
+        s = metrics["summary"]
+        machines = "; ".join(f"{m}: F21 MAPE dig {v['dynamic_mape_pct']:.1f} % / hold {v['static_mape_pct']:.1f} % "
+                             f"(direct-Pi {v['direct_pi_dynamic_mape_pct']:.0f} / {v['direct_pi_static_mape_pct']:.0f}"
+                             f" %), coverage {v['interval_coverage']:.2f}"
+                             for m, v in metrics["held_out_machines"].items())
+        return [*common,
+                ("held_out machines", f"{s['drawn_test_machines']} drawn: dig {s['dynamic_mape_pct_median']:.1f} % "
+                                      f"median, {s['dynamic_mape_pct_worst']:.1f} % worst; hold "
+                                      f"{s['static_mape_pct_median']:.1f} / {s['static_mape_pct_worst']:.1f} %; "
+                                      f"coverage {s['interval_coverage_min']:.2f}–{s['interval_coverage_max']:.2f}"),
+                ("per machine", machines),
+                ("training", f"{len(training['machines'])} machines, calibration on "
+                             f"{len(training['calibration_machines'])}, data {training['data_hash']}, seed "
+                             f"{training['seed']}, code {training['code_version']}")]
     held = metrics["held_out_episodes"]
     machines = "; ".join(f"{m}: F21 MAPE {v['f21_mape_pct']:.1f} %, interval coverage {v['interval_coverage']:.2f}"
                          for m, v in metrics["held_out_machines"].items())
-    return [("predicts", card["predicts"]["equation"]),
-            ("groups", f"{groups['set']}: π1 = {groups['output']['expression']}; inputs "
-                       + ", ".join(g["expression"] for g in groups["inputs"])),
-            ("inputs", ", ".join(f"{d['name']} [{d['unit']}]" for d in card["inputs"])),
-            ("interval", f"{card['interval']['method']} at {card['interval']['coverage']:.0%}"),
+    return [*common,
             ("held_out episodes", f"R² of δ1 {held['r2_dig']:.4f} (dig cycles), {held['r2']:.4f} (all rows); "
                                   f"F21 MAPE {held['f21_mape_pct']:.2f} %"),
             ("held_out machines", machines),

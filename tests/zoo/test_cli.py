@@ -97,3 +97,6 @@ def test_zoo_list_and_show(capsys: pytest.CaptureFixture[str]):
     assert main(["zoo", "show", "gru-eq23", "--verify"]) == 0
     out = capsys.readouterr().out
     assert "verified" in out and "F21/F31" in out and "held_out" in out
+    assert main(["zoo", "show", "statics-pl", "--verify"]) == 0
+    out = capsys.readouterr().out
+    assert "verified" in out and "F21/F21_linkage" in out and "direct-Pi" in out and "wa475" in out
