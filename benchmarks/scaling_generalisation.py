@@ -23,6 +23,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import torch
 
@@ -137,16 +138,25 @@ def report(table: pd.DataFrame, meta: dict) -> str:
               "separates the rows of the test machines more than 10 % off from the rest (0.5 = chance). "
               f"Design distance alone: threshold {ex['threshold']:.2f} (95th percentile of the calibration "
               f"machines); machines it warns on: {warned}.", "",
-              "| model | AUROC: error score | AUROC: design distance | AUROC: ensemble spread | "
-              "rows warned on, median / max over the drawn test machines |", "|---|---|---|---|---|"]
+              "| model | AUROC: error score | rows warned on, median / max over the drawn test machines | "
+              "AUROC: served risk | rows warned on by it | AUROC: design distance | AUROC: ensemble spread |",
+              "|---|---|---|---|---|---|---|"]
+
+    def fmt(x: float | None) -> str:
+        return "–" if x is None or not np.isfinite(x) else f"{x:.2f}"
+
+    def shares(table: dict[str, float]) -> str:
+        share = pd.Series({m: v for m, v in table.items() if m not in ("mini", "wa475")}, dtype=float)
+        return f"{100 * share.median():.0f} % / {100 * share.max():.0f} %" if len(share) else "–"
+
     for name, a in ex["auroc_design_distance"].items():
-        spread = ex["auroc_ensemble_spread"].get(name)
-        score = ex.get("auroc_error_score", {}).get(name)
-        share = pd.Series({m: v for m, v in ex.get("warn_share", {}).get(name, {}).items()
-                           if m not in ("mini", "wa475")}, dtype=float)
-        share_s = f"{100 * share.median():.0f} % / {100 * share.max():.0f} %" if len(share) else "–"
-        lines.append(f"| {name} | {'–' if score is None else f'{score:.2f}'} | {a:.2f} | "
-                     f"{'–' if spread is None else f'{spread:.2f}'} | {share_s} |")
+        lines.append(f"| {name} | {fmt(ex['auroc_error_score'].get(name))} | "
+                     f"{shares(ex['warn_share'].get(name, {}))} | {fmt(ex['auroc_row_risk'].get(name))} | "
+                     f"{shares(ex['row_risk_warn_share'].get(name, {}))} | {fmt(a)} | "
+                     f"{fmt(ex['auroc_ensemble_spread'].get(name))} |")
+    lines += ["", "Served risk (`scaling.conformal.RowRisk`, what a checkpoint such as `statics-pl` computes per "
+              "row): the same kind of score on what a served model knows, the novelty of its feature row, |ln δ1| "
+              "and whether the bucket is at rest."]
     lines += ["", "## Every test machine", "",
               "| machine | model | source | dynamic MAPE / median [%] | static MAPE / median [%] | peak [%] | "
               "coverage: learned / spread | rows > 10 % off |", "|---|---|---|---|---|---|---|---|"]

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -234,6 +234,28 @@ class InputNovelty:
         self.unit_ = float(np.median(d[:, 1:].mean(axis=1))) or 1.0
         return self
 
+    def state(self) -> tuple[dict[str, Any], np.ndarray]:
+        """(JSON-able parameters, the kept training rows in standardised space) of a fitted instance."""
+        if self.tree_ is None or self.scale_ is None or self.mean_ is None or self.std_ is None:
+            raise RuntimeError("InputNovelty is not fitted")
+        return ({"k": self.k, "max_rows": self.max_rows, "seed": self.seed, "scale": self.scale_.tolist(),
+                 "mean": self.mean_.tolist(), "std": self.std_.tolist(), "unit": self.unit_},
+                np.asarray(self.tree_.data, dtype=float))
+
+    @classmethod
+    def from_state(cls, params: dict[str, Any], rows: np.ndarray) -> InputNovelty:
+        """The fitted instance of :meth:`state` (the tree rebuilt from the rows)."""
+        from scipy.spatial import cKDTree
+
+        out = cls(k=int(params["k"]), max_rows=int(params["max_rows"]), seed=int(params["seed"]))
+        out.scale_, out.mean_, out.std_ = (np.asarray(params[k], dtype=float) for k in ("scale", "mean", "std"))
+        out.unit_ = float(params["unit"])
+        z = np.asarray(rows, dtype=float)
+        if z.ndim != 2 or z.shape[1] != out.scale_.shape[0] or z.shape[0] <= out.k:
+            raise ValueError(f"novelty rows of shape {z.shape} do not fit {out.scale_.shape[0]} features, k={out.k}")
+        out.tree_ = cKDTree(z)
+        return out
+
     def score(self, x: np.ndarray) -> np.ndarray:
         if self.tree_ is None:
             raise RuntimeError("InputNovelty is not fitted")
@@ -294,6 +316,22 @@ class ErrorScore:
         self.threshold_ = group_weighted_quantile(self.score(x), g, self.warn_quantile)
         return self
 
+    def state(self) -> dict[str, Any]:
+        """JSON-able parameters of a fitted instance (:meth:`from_state` rebuilds it)."""
+        if self.coef_ is None or self.mean_ is None or self.std_ is None:
+            raise RuntimeError("ErrorScore is not fitted")
+        return {"miss": self.miss, "warn_quantile": self.warn_quantile, "l2": self.l2, "mean": self.mean_.tolist(),
+                "std": self.std_.tolist(), "coef": self.coef_.tolist(), "threshold": self.threshold_}
+
+    @classmethod
+    def from_state(cls, params: dict[str, Any]) -> ErrorScore:
+        out = cls(miss=float(params["miss"]), warn_quantile=float(params["warn_quantile"]), l2=float(params["l2"]))
+        out.mean_, out.std_, out.coef_ = (np.asarray(params[k], dtype=float) for k in ("mean", "std", "coef"))
+        if not out.mean_.shape == out.std_.shape == (out.coef_.shape[0] - 1,):
+            raise ValueError("error-score parameters of inconsistent lengths")
+        out.threshold_ = float(params["threshold"])
+        return out
+
     def score(self, features: np.ndarray) -> np.ndarray:
         """P(error > miss) per row (NaN where a feature is not finite)."""
         if self.coef_ is None or self.mean_ is None or self.std_ is None:
@@ -330,3 +368,47 @@ def coverage_by_group(actual: np.ndarray, lower: np.ndarray, upper: np.ndarray,
     a, g = np.asarray(actual, dtype=float), np.asarray(groups).astype(str)
     inside = (a >= np.asarray(lower)) & (a <= np.asarray(upper))
     return {str(n): float(np.mean(inside[g == n])) for n in np.unique(g)}
+
+
+@dataclass
+class RowRisk:
+    """The risk that a served prediction is more than ``score.miss`` off, from what a served model knows of a row:
+    how novel its feature row g is among the training pairs' (:class:`InputNovelty`), how large a correction it
+    applies (|ln δ1|) and whether the bucket is at rest; an :class:`ErrorScore` on those three, fitted on the
+    calibration machines. The benchmark's error score adds the ensemble's spread and the design distance, which a
+    served point model does not have."""
+
+    novelty: InputNovelty
+    score: ErrorScore
+
+    FEATURES: ClassVar[tuple[str, ...]] = ("ln novelty of the model's feature row", "|ln δ1| predicted",
+                                 "bucket at rest (1) or moving (0)")
+
+    @staticmethod
+    def features(novelty: InputNovelty, g: np.ndarray, log_delta: np.ndarray, static: np.ndarray) -> np.ndarray:
+        return np.column_stack([np.log(np.maximum(novelty.score(g), 1e-12)), np.abs(np.asarray(log_delta, float)),
+                                np.asarray(static, dtype=float)])
+
+    @classmethod
+    def fit(cls, train_g: np.ndarray, g: np.ndarray, log_delta: np.ndarray, static: np.ndarray, error: np.ndarray,
+            groups: np.ndarray, *, miss: float = 0.10, seed: int = 0) -> RowRisk:
+        """``train_g``: feature rows of the training pairs; the rest: calibration rows (their machine in
+        ``groups``, the relative error of the prediction in ``error``)."""
+        novelty = InputNovelty(seed=seed).fit(train_g)
+        return cls(novelty, ErrorScore(miss).fit(cls.features(novelty, g, log_delta, static), error, groups))
+
+    def risk(self, g: np.ndarray, log_delta: np.ndarray, static: np.ndarray) -> np.ndarray:
+        """P(error > miss) per row."""
+        return self.score.score(self.features(self.novelty, g, log_delta, static))
+
+    def warns(self, g: np.ndarray, log_delta: np.ndarray, static: np.ndarray) -> np.ndarray:
+        return self.score.warns(self.features(self.novelty, g, log_delta, static))
+
+    def state(self) -> tuple[dict[str, Any], np.ndarray]:
+        """(JSON-able parameters, the novelty's training rows)."""
+        params, rows = self.novelty.state()
+        return {"features": list(self.FEATURES), "novelty": params, "score": self.score.state()}, rows
+
+    @classmethod
+    def from_state(cls, params: dict[str, Any], rows: np.ndarray) -> RowRisk:
+        return cls(InputNovelty.from_state(params["novelty"], rows), ErrorScore.from_state(params["score"]))

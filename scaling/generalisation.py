@@ -31,7 +31,15 @@ import pandas as pd
 
 from scaletwin_envs.parallel import Executor
 from scaletwin_envs.specs.loader import LoaderSpec
-from scaling.conformal import ErrorScore, ExtrapolationScore, GroupConformal, InputNovelty, ResidualScale, auroc
+from scaling.conformal import (
+    ErrorScore,
+    ExtrapolationScore,
+    GroupConformal,
+    InputNovelty,
+    ResidualScale,
+    RowRisk,
+    auroc,
+)
 from scaling.data import SOILS, load_or_generate
 from scaling.delta_dataset import DeltaDataset
 from scaling.evaluation import after_settling, at_rest, in_domain
@@ -52,6 +60,8 @@ from scaling.product_line import (
 PEAK_FRACTION = 0.05
 #: An error above this (relative) counts as a miss for the extrapolation score's AUROC.
 MISS = 0.10
+#: Training feature rows kept per model in :attr:`GeneralisationResult.training_sample`.
+TRAINING_SAMPLE = 3000
 
 
 @dataclass
@@ -175,7 +185,9 @@ class MachineResult:
 class GeneralisationResult:
     """Per (test machine, model) results, the error score's judgement, fit times, and what an artefact built from
     a model needs: the fitted ``models``, each model's ln δ1 residuals on the calibration machines with the machine
-    of each row (``calibration``), and the feature range of its training pairs (``training_range``: min, max)."""
+    of each row (``calibration``), the feature range of its training pairs (``training_range``: min, max) and a
+    seeded sample of at most :data:`TRAINING_SAMPLE` of their feature rows (``training_sample``) and the
+    risk a served model can compute per row (``row_risk``, :class:`~scaling.conformal.RowRisk`)."""
 
     rows: list[MachineResult]
     extrapolation: dict[str, Any] = field(default_factory=dict)
@@ -183,6 +195,8 @@ class GeneralisationResult:
     models: dict[str, DeltaModel] = field(default_factory=dict)
     calibration: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     training_range: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    training_sample: dict[str, np.ndarray] = field(default_factory=dict)
+    row_risk: dict[str, RowRisk] = field(default_factory=dict)
 
     def frame(self) -> pd.DataFrame:
         return pd.DataFrame([r.__dict__ for r in self.rows])
@@ -239,6 +253,7 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
 
     novelty: dict[str, InputNovelty] = {}
     training_range: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    training_sample: dict[str, np.ndarray] = {}
     calibration: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     for cand in candidates:
         train = pd.concat([training_rows(by_machine[m], (*cand.groups, cand.output)) for m in split.train],
@@ -250,6 +265,8 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
         fit_seconds[cand.name] = time.perf_counter() - start
         g = model.features(pairs)
         training_range[cand.name] = (g.min(axis=0), g.max(axis=0))
+        keep = np.random.default_rng(seed).permutation(len(g))[:TRAINING_SAMPLE]
+        training_sample[cand.name] = g[np.sort(keep)]
         groups_of[cand.name], output_of[cand.name] = cand.groups, cand.output
         novelty[cand.name] = InputNovelty(seed=seed).fit(pairs.pi_target)
     for name in ("direct-Pi (ER12)", "direct-Pi (nearest machine)"):
@@ -271,13 +288,15 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
         f21 = pairs.target_values()
         features = np.column_stack([np.log(scale), np.log(novelty[name].score(pairs.pi_target)),
                                     np.abs(log_pred), np.full(len(pairs), np.log(machine_score[target])),
-                                    (_kinds(pairs, tgt) == "static").astype(float)])
-        return _Predicted(pairs, tgt, log_pred, scale, pred, f21, _errors(pred, f21), features)
+                                    (row_kinds(pairs, tgt) == "static").astype(float)])
+        g = None if models[name] is None else models[name].features(pairs)
+        return _Predicted(pairs, tgt, log_pred, scale, pred, f21, _errors(pred, f21), features, g)
 
     calibrators: dict[str, GroupConformal] = {}
     spread_calibrators: dict[str, GroupConformal] = {}
     scales: dict[str, ResidualScale] = {}
     error_scores: dict[str, ErrorScore] = {}
+    row_risks: dict[str, RowRisk] = {}
     for name in models:
         cal = [predict(name, m) for m in split.calibration]
         grp = np.concatenate([np.full(len(c.err), m) for c, m in zip(cal, split.calibration, strict=True)])
@@ -291,9 +310,16 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
             error_scores[name] = ErrorScore(MISS).fit(features, np.concatenate([c.err for c in cal]), grp)
         except ValueError as exc:  # no calibration row missed (or every one did): no risk to learn
             say(f"{name}: no error score ({exc})")
+            continue
+        if models[name] is not None:
+            row_risks[name] = RowRisk.fit(training_sample[name], np.concatenate([c.g for c in cal]),
+                                          np.concatenate([c.log_pred for c in cal]), features[:, -1],
+                                          np.concatenate([c.err for c in cal]), grp, miss=MISS, seed=seed)
 
     auroc_rows: dict[str, tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray], list[np.ndarray]]] = {}
     warn_share: dict[str, dict[str, float]] = {}
+    served: dict[str, tuple[list[np.ndarray], list[np.ndarray]]] = {}
+    served_warn_share: dict[str, dict[str, float]] = {}
     for m in split.test:
         say(f"judging {m} (source {source_of[m]})")
         for name in models:
@@ -302,7 +328,7 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
             inside = (p.pairs.log_delta >= lo) & (p.pairs.log_delta <= hi)
             lo, hi = spread_calibrators[name].interval(p.log_pred, p.scale)
             inside_spread = (p.pairs.log_delta >= lo) & (p.pairs.log_delta <= hi)
-            kind = _kinds(p.pairs, p.tgt)
+            kind = row_kinds(p.pairs, p.tgt)
             results.append(_summarise(m, name, source_of[m] if name != "direct-Pi (ER12)" else split.reference,
                                       p.err, kind, p.pred, p.f21, inside, inside_spread))
             scorer = error_scores.get(name)
@@ -313,6 +339,11 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
             bucket[1].append(p.scale)
             bucket[2].append(risk)
             bucket[3].append(p.err > MISS)
+            if name in row_risks and p.g is not None:
+                args = (p.g, p.log_pred, p.features[:, -1])
+                served.setdefault(name, ([], []))[0].append(row_risks[name].risk(*args))
+                served[name][1].append(p.err > MISS)
+                served_warn_share.setdefault(name, {})[m] = float(np.mean(row_risks[name].warns(*args)))
         tgt = judged[m]
         f21 = tgt["F21"].to_numpy(float)
         pred = tgt["tilt_ratio"].to_numpy(float) * np.abs(tgt["Pf_tilt"].to_numpy(float))
@@ -324,6 +355,8 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
         "threshold": extrap.threshold_, "machine_score": {m: machine_score[m] for m in split.test},
         "warned": {m: bool(machine_score[m] > extrap.threshold_) for m in split.test},
         "auroc_design_distance": {}, "auroc_ensemble_spread": {}, "auroc_error_score": {}, "warn_share": warn_share,
+        "auroc_row_risk": {name: auroc(np.concatenate(r), np.concatenate(y)) for name, (r, y) in served.items()},
+        "row_risk_warn_share": served_warn_share,
         "error_score": {name: {"coef": None if e.coef_ is None else e.coef_.tolist(),
                                "threshold": e.threshold_,
                                "features": list(ERROR_FEATURES)} for name, e in error_scores.items()}}
@@ -335,7 +368,8 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
         if isinstance(models[name], DeepEnsemble):
             extrap_out["auroc_ensemble_spread"][name] = auroc(np.concatenate(spread), y)
     fitted = {name: m for name, m in models.items() if m is not None}
-    return GeneralisationResult(results, extrap_out, fit_seconds, fitted, calibration, training_range)
+    return GeneralisationResult(results, extrap_out, fit_seconds, fitted, calibration, training_range,
+                                training_sample, row_risks)
 
 
 #: Columns of the per-row features of the error score (:class:`scaling.conformal.ErrorScore`).
@@ -346,7 +380,8 @@ ERROR_FEATURES = ("ln σ of ln δ1 (ensembles; 0 otherwise)", "ln input novelty"
 @dataclass
 class _Predicted:
     """One model's prediction for one machine's judged rows: the pairs, log δ1 and its scale, F21 predicted and
-    actual (N), relative error and the error score's features (:data:`ERROR_FEATURES`)."""
+    actual (N), relative error, the error score's features (:data:`ERROR_FEATURES`) and the model's feature rows
+    g (None for direct-Pi)."""
 
     pairs: DeltaDataset
     tgt: pd.DataFrame
@@ -356,9 +391,10 @@ class _Predicted:
     f21: np.ndarray
     err: np.ndarray
     features: np.ndarray
+    g: np.ndarray | None = None
 
 
-def _kinds(pairs: DeltaDataset, tgt: pd.DataFrame) -> np.ndarray:
+def row_kinds(pairs: DeltaDataset, tgt: pd.DataFrame) -> np.ndarray:
     """``"static"`` or ``"dynamic"`` for every pair (pairs keep target rows in order, minus dropped ones: matched
     back by (episode, time))."""
     label = np.where(at_rest(tgt), "static", "dynamic")

@@ -16,6 +16,8 @@ Card fields (besides the common ones, :mod:`zoo.checkpoint`):
 ``training_range``    per input group, min/max of the distortion feature g on the training pairs
 ``training``          machines, soils, dataset spec and hashes, pipeline config, seed, code version, fit time
 ``metrics``           held-out episodes (R² of δ1), held-out machines, miniature errors, the check set
+``risk``              (optional) the error score served per row (:class:`scaling.conformal.RowRisk`), its novelty rows
+                      in ``risk.safetensors``
 """
 
 from __future__ import annotations
@@ -28,10 +30,13 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+from safetensors.numpy import load_file, save_file
 
+from scaling.conformal import RowRisk
 from scaling.delta_dataset import DeltaDataset
 from scaling.models import DeltaModel, load_model
 from scaling.models.base import CONFIG_FILE, WEIGHTS_FILE
+from scaling.provenance import to_jsonable
 from zoo.checkpoint import CARD_NAME, finish_checkpoint, prepare_directory
 from zoo.errors import CheckpointError
 from zoo.loading import load, register_builder
@@ -40,12 +45,14 @@ from zoo.serving.model import ExtrapolationWarning, ScalingModel
 
 KIND = "scaling-model"
 CHECK_FILE = "check.csv"
+RISK_FILE = "risk.safetensors"
 CARD_KEYS = ("predicts", "delta_convention", "groups", "source", "inputs", "interval", "training_range", "training",
              "metrics")
 
 
 def save_scaling_model(model: DeltaModel, directory: str | Path, card_fields: Mapping[str, Any],
-                       check_rows: pd.DataFrame | None = None, overwrite: bool = False) -> Path:
+                       check_rows: pd.DataFrame | None = None, overwrite: bool = False,
+                       risk: RowRisk | None = None) -> Path:
     """Write a scaling-model checkpoint; returns its directory.
 
     Args:
@@ -53,21 +60,32 @@ def save_scaling_model(model: DeltaModel, directory: str | Path, card_fields: Ma
         card_fields: the card's content (:data:`CARD_KEYS` at least; see the module docstring).
         check_rows: a small held-out table (SI; ``episode``, ``t`` and the signals) stored as ``check.csv`` with
             ``name [unit]`` headers, on which the card's ``metrics.check_set`` was measured.
+        risk: an error score the served model computes per row (:class:`~scaling.conformal.RowRisk`): its
+            parameters go on the card (``risk``), its novelty rows into ``risk.safetensors``.
     """
     missing = [k for k in CARD_KEYS if k not in card_fields]
     if missing:
         raise ValueError(f"card fields missing {missing}")
-    directory = prepare_directory(directory, [CONFIG_FILE, WEIGHTS_FILE, CARD_NAME, CHECK_FILE], overwrite)
+    directory = prepare_directory(directory, [CONFIG_FILE, WEIGHTS_FILE, CARD_NAME, CHECK_FILE, RISK_FILE],
+                                  overwrite)
     model.save(directory)
     (directory / WEIGHTS_FILE).chmod(0o644)
     files = [CONFIG_FILE, WEIGHTS_FILE]
+    fields = dict(card_fields)
+    if risk is not None:
+        params, rows = risk.state()
+        save_file({"novelty_rows": np.ascontiguousarray(rows, dtype=np.float64)}, str(directory / RISK_FILE))
+        fields["risk"] = to_jsonable({**params, "file": RISK_FILE})
+        files.append(RISK_FILE)
+    else:
+        (directory / RISK_FILE).unlink(missing_ok=True)
     if check_rows is not None:
         check_rows.rename(columns=_check_header).to_csv(directory / CHECK_FILE, index=False, float_format="%.17g")
         files.append(CHECK_FILE)
     else:  # a check set left by an earlier save would be unlisted: loading refuses unlisted files
         (directory / CHECK_FILE).unlink(missing_ok=True)
-    finish_checkpoint(directory, KIND, {"model": {"class": model.name, "config": model.get_config()},
-                                        **dict(card_fields)}, files)
+    finish_checkpoint(directory, KIND, {"model": {"class": model.name, "config": model.get_config()}, **fields},
+                      files)
     _check_round_trip(model, directory)
     return directory
 
@@ -86,12 +104,22 @@ def build_scaling_model(directory: Path, card: dict[str, Any], ref: str) -> Scal
     if model.groups_ != {k: card["groups"].get(k) for k in ("output", "inputs", "target_variable")}:
         raise CheckpointError(f"{directory}: the model's groups differ from the card's")
     try:
-        return ScalingModel(model, card, ref)
+        return ScalingModel(model, card, ref, _load_risk(directory, card))
     except (KeyError, TypeError, ValueError) as exc:
         raise CheckpointError(f"{directory}: malformed scaling-model card ({type(exc).__name__}: {exc})") from exc
 
 
 register_builder(KIND, build_scaling_model)
+
+
+def _load_risk(directory: Path, card: Mapping[str, Any]) -> RowRisk | None:
+    """The card's error score (its novelty rows from the hashed ``risk.safetensors``), or None."""
+    if "risk" not in card:
+        return None
+    name = card["risk"].get("file")
+    if name not in card["files"]:
+        raise CheckpointError(f"{directory}: the card's error score names {name!r}, which is not a listed file")
+    return RowRisk.from_state(card["risk"], load_file(str(directory / name))["novelty_rows"])
 
 
 def _check_header(column: str) -> str:

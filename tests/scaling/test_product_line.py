@@ -3,6 +3,7 @@ simulated line, conformal intervals calibrated over machines, the extrapolation 
 
 from __future__ import annotations
 
+import json
 import math
 from fractions import Fraction
 
@@ -19,6 +20,7 @@ from scaling.conformal import (
     GroupConformal,
     InputNovelty,
     ResidualScale,
+    RowRisk,
     auroc,
     coverage_by_group,
     group_weighted_quantile,
@@ -490,6 +492,24 @@ def test_learned_scale_keeps_coverage_where_errors_are_large_and_small() -> None
         ResidualScale().cross_fit(x[:300], r[:300], g[:300])
     with pytest.raises(RuntimeError, match="not fitted"):
         ResidualScale().scale(x)
+
+
+def test_error_scores_survive_their_state() -> None:
+    """InputNovelty, ErrorScore and RowRisk rebuilt from their JSON state (and the novelty rows) score exactly as
+    the fitted ones; mismatched state is refused."""
+    rng = np.random.default_rng(6)
+    train_g = rng.normal(size=(600, 4))
+    g, e, grp = rng.normal(size=(900, 4)), np.abs(rng.normal(0, 0.1, 900)), np.repeat(np.arange(3), 300)
+    log_delta, static = rng.normal(0, 0.05, 900), rng.random(900) < 0.4
+    risk = RowRisk.fit(train_g, g, log_delta, static, e * (1 + np.abs(g[:, 0])), grp)
+    params, rows = risk.state()
+    again = RowRisk.from_state(json.loads(json.dumps(params)), rows)
+    np.testing.assert_array_equal(again.risk(g, log_delta, static), risk.risk(g, log_delta, static))
+    assert again.score.threshold_ == risk.score.threshold_
+    with pytest.raises(ValueError, match="do not fit"):
+        InputNovelty.from_state(params["novelty"], rows[:, :3])
+    with pytest.raises(ValueError, match="inconsistent"):
+        ErrorScore.from_state({**params["score"], "coef": params["score"]["coef"][:-1]})
 
 
 def test_auroc_is_the_pairwise_probability() -> None:

@@ -4,18 +4,20 @@ fitted model predicts on matched source rows, and its interval is the calibratio
 from __future__ import annotations
 
 import json
+import warnings
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
+from safetensors.numpy import load_file
 
 import zoo
-from scaling.conformal import group_weighted_quantile
+from scaling.conformal import RowRisk, group_weighted_quantile
 from scaling.delta_dataset import DeltaDataset
 from scaling.fitted import model_groups
-from scaling.generalisation import LeaveMachineOut, judged_rows
+from scaling.generalisation import LeaveMachineOut, judged_rows, row_kinds
 from scaling.models import load_model
 from scaling.product_line import PI1_LINKAGE, match_rows, nearest_machine
 from zoo.product_line import NAME, ProductLineBuild, build_product_line
@@ -87,12 +89,21 @@ def test_served_model_predicts_on_matched_source_rows(built: tuple[Path, Path, P
     ok = np.isfinite(np.column_stack([g.evaluate(tgt).reshape(-1) for g in (*groups, PI1_LINKAGE)])).all(axis=1)
     tgt = tgt[ok].reset_index(drop=True)
     source = src.iloc[match_rows(src, tgt)].reset_index(drop=True)
-    out = served.scale_force(source, tgt.drop(columns=["F21"]))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", zoo.ExtrapolationWarning)  # a tiny model: many rows are risky
+        out = served.scale_force(source, tgt.drop(columns=["F21"]))
     pairs = DeltaDataset.from_matched(source, tgt, PI1_LINKAGE, groups)
     assert len(pairs) == len(tgt)
     np.testing.assert_allclose(out.delta1, model.predict(pairs), rtol=1e-5)
     np.testing.assert_allclose(out.force, pairs.recover(model.predict(pairs)), rtol=1e-5)
     assert np.all(out.lower <= out.force) and np.all(out.force <= out.upper)
+    # the served risk: the card's error score on the model's own features, |ln δ1| and the at-rest rows
+    card = zoo.card(path)
+    risk = RowRisk.from_state(card["risk"], load_file(str(path / card["risk"]["file"]))["novelty_rows"])
+    static = row_kinds(pairs, tgt) == "static"
+    assert out.risk is not None and np.all((out.risk >= 0) & (out.risk <= 1))
+    np.testing.assert_allclose(out.risk, risk.risk(model.features(pairs), model.predict_log(pairs), static),
+                               rtol=1e-6, atol=1e-9)
     with pytest.raises(ValueError, match="F21_linkage"):
         served.scale_force(source, tgt.drop(columns=["F21_linkage"]))
 

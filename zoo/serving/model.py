@@ -37,6 +37,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import pandas as pd
 
+from scaling.conformal import RowRisk
+from scaling.evaluation import at_rest
 from scaling.factors import LogDistortion, scaled_variable
 from scaling.fitted import STATIC_STEPS, model_groups
 from scaling.groups import PiGroup
@@ -71,7 +73,9 @@ class SourceWarning(UserWarning):
 @dataclass
 class ScaledForce:
     """Scaled force per target row (SI): ``force`` (e.g. F21, N) with its ``lower``/``upper`` interval at
-    ``coverage``, the predicted ``delta1`` and whether each row was ``extrapolated``."""
+    ``coverage``, the predicted ``delta1``, whether each row was ``extrapolated`` (outside the training range of
+    the features) and, for checkpoints that carry an error score, the ``risk`` that the row is more than 10 % off
+    (:class:`~scaling.conformal.RowRisk`; None otherwise)."""
 
     variable: str
     unit: str
@@ -82,6 +86,7 @@ class ScaledForce:
     extrapolated: np.ndarray
     coverage: float
     interval_method: str
+    risk: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.force)
@@ -110,8 +115,9 @@ class ScalingModel:
         coverage: the default interval level.
     """
 
-    def __init__(self, model: DeltaModel, card: Mapping[str, Any], ref: str) -> None:
+    def __init__(self, model: DeltaModel, card: Mapping[str, Any], ref: str, risk: RowRisk | None = None) -> None:
         self.model, self.card, self.ref = model, dict(card), ref
+        self.risk = risk
         output, inputs = model_groups(model)
         self.output_group, self.input_groups = output, inputs
         self.variable, exponent = scaled_variable(output)
@@ -299,11 +305,32 @@ class ScalingModel:
         else:
             parts = map_ordered(lambda start: self._chunk(x, start, spread), range(0, n, CHUNK), threads)
         force, lo, hi, delta, outside, g_out = (np.concatenate(c) for c in zip(*parts, strict=True))
-        if outside.any():
-            self._warn(g_out, int(outside.sum()), len(outside))
         if not np.all(np.isfinite(force)):
             raise InputError(f"target: {int((~np.isfinite(force)).sum())} rows give a non-finite {self.variable}")
-        return ScaledForce(self.variable, self.unit, force, lo, hi, delta, outside, spread[0], self.interval_method)
+        risk = None
+        if self.risk is not None and not isinstance(self.kernel, GRUKernel):
+            risk = self._row_risk(x, delta)
+            warned = risk > self.risk.score.threshold_
+            if warned.any():
+                warnings.warn(f"{self.name}: {int(warned.sum())} of {len(warned)} target rows are likely more than "
+                              f"{self.risk.score.miss:.0%} off (error score above its threshold, calibrated on "
+                              "held-out machines; ScaledForce.risk per row)", ExtrapolationWarning, stacklevel=3)
+        elif outside.any():
+            self._warn(g_out, int(outside.sum()), len(outside))
+        return ScaledForce(self.variable, self.unit, force, lo, hi, delta, outside, spread[0], self.interval_method,
+                           risk)
+
+    def _row_risk(self, x: np.ndarray, delta: np.ndarray) -> np.ndarray:
+        """P(error > miss) of every row (:class:`~scaling.conformal.RowRisk`): its features g, |ln δ1| and
+        whether the bucket is at rest (:func:`scaling.evaluation.at_rest` on the target's F31, m_b, x_b, a1 and α1;
+        moving when the model does not take them)."""
+        assert self.risk is not None
+        g = np.concatenate([self._features_of(x[s:s + CHUNK], s)[0] for s in range(0, len(x), CHUNK)])
+        col = {v: i for i, v in enumerate(self.target_variables)}
+        needed = ("F31", "m_b", "x_b", "a1", "alpha1")
+        static = (at_rest(pd.DataFrame({v: x[:, col[v]] for v in needed})) if all(v in col for v in needed)
+                  else np.zeros(len(x), dtype=bool))
+        return self.risk.risk(g, np.log(delta), static)
 
     def _chunk(self, x: np.ndarray, start: int, spread: tuple[float, float, float]) -> tuple[np.ndarray, ...]:
         """:meth:`_finish` of feed-forward rows ``start:start + CHUNK``."""
