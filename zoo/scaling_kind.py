@@ -75,6 +75,7 @@ def save_scaling_model(model: DeltaModel, directory: str | Path, card_fields: Ma
     if risk is not None:
         params, rows = risk.state()
         save_file({"novelty_rows": np.ascontiguousarray(rows, dtype=np.float64)}, str(directory / RISK_FILE))
+        (directory / RISK_FILE).chmod(0o644)
         fields["risk"] = to_jsonable({**params, "file": RISK_FILE})
         files.append(RISK_FILE)
     else:

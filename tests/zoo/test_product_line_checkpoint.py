@@ -117,3 +117,26 @@ def test_rebuild_is_deterministic(built: tuple[Path, Path, ProductLineBuild], tm
     first, second = zoo.card(path)["files"], zoo.card(again)["files"]
     assert first["weights.safetensors"] == second["weights.safetensors"]
     assert pd.read_csv(path / "check.csv").equals(pd.read_csv(again / "check.csv"))
+
+
+def test_risk_can_be_skipped_for_throughput(built: tuple[Path, Path, ProductLineBuild]) -> None:
+    """``risk=False``: the same forces, no risk, no warning (the error score's warnings replace the training-range
+    rule for such checkpoints, so none fires)."""
+    path, _, cfg = built
+    served = zoo.load(path)
+    frame = cfg.layout.load(cfg.data_dir, executor="serial", progress=False)
+    src = frame[frame["machine"] == "er12"].reset_index(drop=True)
+    tgt = frame[frame["machine"] == "mini"].reset_index(drop=True)
+    tgt = tgt[judged_rows(tgt)].reset_index(drop=True)
+    groups = model_groups(served.model)[1]
+    ok = np.isfinite(np.column_stack([g.evaluate(tgt).reshape(-1) for g in (*groups, PI1_LINKAGE)])).all(axis=1)
+    tgt = tgt[ok].reset_index(drop=True)
+    source = src.iloc[match_rows(src, tgt)].reset_index(drop=True)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", zoo.ExtrapolationWarning)
+        full = served.scale_force(source, tgt)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        fast = served.scale_force(source, tgt, risk=False)
+    assert fast.risk is None and full.risk is not None
+    np.testing.assert_array_equal(fast.force, full.force)
