@@ -47,14 +47,43 @@ def group_weighted_quantile(scores: np.ndarray, groups: np.ndarray, level: float
     s, g = s[ok], g[ok]
     if s.size == 0:
         raise ValueError("no finite calibration scores")
-    names, inverse, counts = np.unique(g, return_inverse=True, return_counts=True)
-    w = 1.0 / counts[inverse]
-    w = w / w.sum()
+    w = machine_weights(g)
     order = np.argsort(s)
     cdf = np.cumsum(w[order])
-    n_groups = len(names)
+    n_groups = len(np.unique(g))
     target = min(1.0, level * (n_groups + 1) / n_groups) if finite_sample else level
     return float(s[order][min(int(np.searchsorted(cdf, target - 1e-12)), s.size - 1)])
+
+
+def machine_weights(groups: np.ndarray) -> np.ndarray:
+    """Row weights summing to 1 with every group (machine) weighing the same, whatever its row count."""
+    _, inverse, counts = np.unique(np.asarray(groups).astype(str), return_inverse=True, return_counts=True)
+    w = 1.0 / counts[inverse]
+    return w / w.sum()
+
+
+def standardisation(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(mean, standard deviation) of the columns of ``x``; a constant column gets 1 (it stays constant)."""
+    mean, std = x.mean(axis=0), x.std(axis=0)
+    std[std == 0] = 1.0
+    return mean, std
+
+
+def _calibration_rows(features: np.ndarray, values: np.ndarray, groups: np.ndarray,
+                      name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The rows of (features, values, groups) whose features and value are finite.
+
+    Raises:
+        ValueError: the three do not have one entry per row, or no row is finite.
+    """
+    x, v = np.atleast_2d(np.asarray(features, dtype=float)), np.asarray(values, dtype=float)
+    g = np.asarray(groups).astype(str)
+    if not x.shape[0] == v.shape[0] == g.shape[0]:
+        raise ValueError(f"features, {name} and groups must have one entry per row")
+    ok = np.isfinite(x).all(axis=1) & np.isfinite(v)
+    if not ok.any():
+        raise ValueError("no finite calibration rows")
+    return x[ok], v[ok], g[ok]
 
 
 @dataclass
@@ -109,20 +138,12 @@ class ResidualScale:
     coef_: np.ndarray | None = None
 
     def fit(self, features: np.ndarray, residual: np.ndarray, groups: np.ndarray) -> ResidualScale:
-        x, r = np.atleast_2d(np.asarray(features, dtype=float)), np.asarray(residual, dtype=float)
-        g = np.asarray(groups).astype(str)
-        if x.shape[0] != r.shape[0] or r.shape[0] != g.shape[0]:
-            raise ValueError("features, residual and groups must have one entry per row")
-        ok = np.isfinite(x).all(axis=1) & np.isfinite(r)
-        if not ok.any():
-            raise ValueError("no finite calibration rows")
-        x, y, g = x[ok], np.log(np.maximum(np.abs(r[ok]), self.floor)), g[ok]
-        self.mean_, self.std_ = x.mean(axis=0), x.std(axis=0)
-        self.std_[self.std_ == 0] = 1.0
+        x, r, g = _calibration_rows(features, residual, groups, "residual")
+        y = np.log(np.maximum(np.abs(r), self.floor))
+        self.mean_, self.std_ = standardisation(x)
         z = np.column_stack([np.ones(len(x)), (x - self.mean_) / self.std_])
-        _, inverse, counts = np.unique(g, return_inverse=True, return_counts=True)
-        w = 1.0 / counts[inverse]
-        penalty = self.l2 * np.eye(z.shape[1]) * w.sum()
+        w = machine_weights(g)
+        penalty = self.l2 * np.eye(z.shape[1])
         penalty[0, 0] = 0.0
         self.coef_ = np.linalg.solve(z.T @ (z * w[:, None]) + penalty, z.T @ (w * y))
         return self
@@ -167,8 +188,7 @@ class ExtrapolationScore:
         x = np.asarray(descriptors, dtype=float)
         if x.ndim != 2 or x.shape[0] <= self.k:
             raise ValueError(f"need more than k={self.k} training machines, got {x.shape[0]}")
-        self.mean_, self.std_ = x.mean(axis=0), x.std(axis=0)
-        self.std_[self.std_ == 0] = 1.0
+        self.mean_, self.std_ = standardisation(x)
         self.train_ = (x - self.mean_) / self.std_
         d = np.linalg.norm(self.train_[:, None, :] - self.train_[None, :, :], axis=-1)
         np.fill_diagonal(d, np.inf)
@@ -225,9 +245,7 @@ class InputNovelty:
             a = a[np.random.default_rng(self.seed).choice(a.shape[0], self.max_rows, replace=False)]
         med = np.median(np.abs(a), axis=0)
         self.scale_ = np.where(med > 0, med, 1.0)
-        t = np.arcsinh(a / self.scale_)
-        self.mean_, self.std_ = t.mean(axis=0), t.std(axis=0)
-        self.std_[self.std_ == 0] = 1.0
+        self.mean_, self.std_ = standardisation(np.arcsinh(a / self.scale_))
         z = self._z(a)
         self.tree_ = cKDTree(z)
         d, _ = self.tree_.query(z, k=self.k + 1)  # the first neighbour is the row itself
@@ -286,22 +304,14 @@ class ErrorScore:
         """``error``: relative error |pred − actual| / actual per row (NaN rows ignored)."""
         from scipy.optimize import minimize
 
-        x, e = np.atleast_2d(np.asarray(features, dtype=float)), np.asarray(error, dtype=float)
-        g = np.asarray(groups).astype(str)
-        if x.shape[0] != e.shape[0] or e.shape[0] != g.shape[0]:
-            raise ValueError("features, error and groups must have one entry per row")
-        ok = np.isfinite(x).all(axis=1) & np.isfinite(e)
-        x, e, g = x[ok], e[ok], g[ok]
+        x, e, g = _calibration_rows(features, error, groups, "error")
         y = e > self.miss
         if y.all() or not y.any():
             raise ValueError(f"calibration rows are all on one side of the {self.miss:.0%} miss line: nothing to "
                              "learn an error score from")
-        self.mean_, self.std_ = x.mean(axis=0), x.std(axis=0)
-        self.std_[self.std_ == 0] = 1.0
+        self.mean_, self.std_ = standardisation(x)
         z = np.column_stack([np.ones(len(x)), (x - self.mean_) / self.std_])
-        _, inverse, counts = np.unique(g, return_inverse=True, return_counts=True)
-        w = 1.0 / counts[inverse]
-        w = w / w.sum()
+        w = machine_weights(g)
         sign = np.where(y, 1.0, -1.0)
 
         def loss(beta: np.ndarray) -> tuple[float, np.ndarray]:

@@ -108,6 +108,7 @@ def test_served_model_predicts_on_matched_source_rows(built: tuple[Path, Path, P
         served.scale_force(source, tgt.drop(columns=["F21_linkage"]))
 
 
+@pytest.mark.slow
 def test_rebuild_is_deterministic(built: tuple[Path, Path, ProductLineBuild], tmp_path: Path) -> None:
     """Same data and seed: the same weights (the weights file's hash on the card)."""
     path, _, cfg = built
