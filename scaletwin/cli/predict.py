@@ -4,10 +4,12 @@
 
 Files are CSV or Parquet with ``name [unit]`` headers (any unit pint converts, e.g. ``F31 [kN]``, ``x_b [mm]``) or
 scaletwin recordings. The source is one row of the calibrated machine (``--source-row``, default: the file's only
-row; of a longer recording, the row closest to the model's calibrated reference row) or one row per target row;
+row; of a longer recording, the row closest to the model's calibrated reference row; for a product-line model such
+as ``statics-pl``, every target row's nearest source row in pose and fill) or one row per target row;
 without ``--source`` the model's own calibrated reference row is used. The output holds the target's
 ``machine``/``episode``/``t``/``time`` columns (if any) and ``F21 [N]``, ``F21_lower [N]``, ``F21_upper [N]``,
-``delta1 [1]``, ``extrapolated``; it is printed as CSV when ``--out`` is not given.
+``delta1 [1]``, ``extrapolated`` (and ``risk [1]`` where the model serves an error score); it is printed as CSV
+when ``--out`` is not given.
 
 Every ``name [unit]`` header of both files is checked, whether or not the model uses the column: a quantity
 scaletwin knows (``F21``, ``x_b``, ``time``...) whose unit pint cannot parse or whose dimension is wrong (``F21
@@ -97,6 +99,39 @@ def read_input(path: str, role: str) -> pd.DataFrame:
     return frame
 
 
+def matched_source(source: pd.DataFrame, target: pd.DataFrame) -> pd.DataFrame:
+    """One source row per target row for a product-line model (:func:`scaling.product_line.match_rows`): nearest in
+    boom angle and bucket pitch (and fill, where both files have it), of the same ``kind`` where both have one.
+
+    Raises:
+        CommandError: a file lacks the boom angle or the bucket pitch.
+    """
+    import pandas as pd
+
+    from scaling.product_line import MATCH_KEYS, MATCH_WEIGHTS, match_rows
+    from zoo.serving import InputError
+    from zoo.serving.inputs import split_header, to_matrix
+
+    names = {split_header(c)[0] for c in source.columns} & {split_header(c)[0] for c in target.columns}
+    keys = [k for k in MATCH_KEYS if k in names]
+    if not {"boom_angle", "bucket_pitch"} <= set(keys):
+        raise CommandError("a product-line model pairs every target row with its nearest source row in pose: both "
+                           "files need boom_angle and bucket_pitch (and fill, load / rated load, where known)")
+    try:
+        frames = [pd.DataFrame(to_matrix(f, keys, role), columns=keys) for f, role in ((source, "source"),
+                                                                                      (target, "target"))]
+    except InputError as exc:
+        raise CommandError(str(exc)) from exc
+    if "kind" in source.columns and "kind" in target.columns:  # dig rows to dig rows, holds to holds
+        for frame, raw in zip(frames, (source, target), strict=True):
+            frame["kind"] = raw["kind"].astype(str).to_numpy()
+    idx = match_rows(frames[0], frames[1], keys, [MATCH_WEIGHTS[MATCH_KEYS.index(k)] for k in keys])
+    print(f"scaletwin predict: each of the {len(target)} target rows paired with its nearest of the {len(source)} "
+          f"source rows in {', '.join(keys)} (a product-line model; --source-row picks one row for all)",
+          file=sys.stderr)
+    return source.iloc[idx].reset_index(drop=True)
+
+
 def run(args: argparse.Namespace) -> int:
     import zoo
     from zoo.serving import InputError, ScalingModel, write_table
@@ -115,6 +150,8 @@ def run(args: argparse.Namespace) -> int:
             if not 0 <= args.source_row < len(source):
                 raise CommandError(f"--source-row {args.source_row} is outside the {len(source)} source rows")
             source = source.iloc[[args.source_row]]
+        elif model.include_source and len(source) != len(target):
+            source = matched_source(source, target)
         elif len(source) not in (1, len(target)):
             try:
                 row = model.nearest_source_row(source)

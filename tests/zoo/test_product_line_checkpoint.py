@@ -141,3 +141,39 @@ def test_risk_can_be_skipped_for_throughput(built: tuple[Path, Path, ProductLine
         fast = served.scale_force(source, tgt, risk=False)
     assert fast.risk is None and full.risk is not None
     np.testing.assert_array_equal(fast.force, full.force)
+
+
+def test_predict_command_pairs_rows_for_a_product_line_model(built: tuple[Path, Path, ProductLineBuild],
+                                                             tmp_path: Path,
+                                                             capsys: pytest.CaptureFixture[str]) -> None:
+    """``scaletwin predict`` with a whole source recording: every target row is paired with its matched source
+    row (as ``match_rows`` pairs them), the output equals the served model's on those pairs and carries the risk;
+    a target without the pose is refused, naming what is missing."""
+    from scaletwin.cli import main
+
+    path, _, cfg = built
+    served = zoo.load(path)
+    frame = cfg.layout.load(cfg.data_dir, executor="serial", progress=False)
+    groups = model_groups(served.model)[1]
+    keep = ["kind", *dict.fromkeys([*served.source_variables, "boom_angle", "bucket_pitch", "fill"])]
+    src = frame[frame["machine"] == "er12"].reset_index(drop=True)[keep]
+    tgt = frame[frame["machine"] == "pl1-0"].reset_index(drop=True)
+    tgt = tgt[judged_rows(tgt)].reset_index(drop=True)
+    ok = np.isfinite(np.column_stack([g.evaluate(tgt).reshape(-1) for g in (*groups, PI1_LINKAGE)])).all(axis=1)
+    tgt = tgt[ok].reset_index(drop=True)[[c for c in keep if c != "F21"]]
+    src.to_csv(tmp_path / "src.csv", index=False)
+    tgt.to_csv(tmp_path / "tgt.csv", index=False)
+    assert main(["predict", "--model", str(path), "--source", str(tmp_path / "src.csv"), "--target",
+                 str(tmp_path / "tgt.csv"), "--out", str(tmp_path / "out.csv")]) == 0
+    out = pd.read_csv(tmp_path / "out.csv")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", zoo.ExtrapolationWarning)
+        expected = served.scale_force(src.iloc[match_rows(src, tgt)].reset_index(drop=True), tgt)
+    np.testing.assert_allclose(out["F21 [N]"], expected.force, rtol=1e-9)
+    np.testing.assert_allclose(out["risk [1]"], expected.risk, rtol=1e-9)
+    assert "paired with its nearest" in capsys.readouterr().err
+    tgt.drop(columns=["bucket_pitch"]).to_csv(tmp_path / "bad.csv", index=False)
+    capsys.readouterr()
+    assert main(["predict", "--model", str(path), "--source", str(tmp_path / "src.csv"), "--target",
+                 str(tmp_path / "bad.csv")]) != 0
+    assert "bucket_pitch" in capsys.readouterr().err

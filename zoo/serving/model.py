@@ -97,11 +97,15 @@ class ScaledForce:
         return self.lower, self.upper
 
     def to_frame(self) -> pd.DataFrame:
-        """Columns ``F21 [N]``, ``F21_lower [N]``, ``F21_upper [N]``, ``delta1 [1]``, ``extrapolated``."""
+        """Columns ``F21 [N]``, ``F21_lower [N]``, ``F21_upper [N]``, ``delta1 [1]``, ``extrapolated`` and, where
+        computed, ``risk [1]``."""
         v, u = self.variable, self.unit
-        return pd.DataFrame({f"{v} [{u}]": self.force, f"{v}_lower [{u}]": self.lower,
-                             f"{v}_upper [{u}]": self.upper, "delta1 [1]": self.delta1,
-                             "extrapolated": self.extrapolated})
+        out = pd.DataFrame({f"{v} [{u}]": self.force, f"{v}_lower [{u}]": self.lower,
+                            f"{v}_upper [{u}]": self.upper, "delta1 [1]": self.delta1,
+                            "extrapolated": self.extrapolated})
+        if self.risk is not None:
+            out["risk [1]"] = self.risk
+        return out
 
 
 class ScalingModel:
