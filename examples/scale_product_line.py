@@ -46,7 +46,7 @@ def main() -> None:
     truth = tgt["F21"].to_numpy(float)
     err = np.abs(out.force / truth - 1)
     lo, hi = out.interval
-    warned = out.risk > model.risk.score.threshold_
+    warned = model.risk.score.above(out.risk)
     print(f"{len(tgt)} rows: F21 error median {100 * np.median(err):.1f} %, mean {100 * np.mean(err):.1f} %, "
           f"max {100 * err.max():.1f} %; the 90 % interval covers {100 * np.mean((truth >= lo) & (truth <= hi)):.0f} %"
           f" of rows")

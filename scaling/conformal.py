@@ -352,8 +352,12 @@ class ErrorScore:
         return np.where(np.isfinite(x).all(axis=1), out, np.nan)
 
     def warns(self, features: np.ndarray) -> np.ndarray:
-        s = self.score(features)
-        return ~(s <= self.threshold_)  # NaN features warn
+        return self.above(self.score(features))
+
+    def above(self, risk: np.ndarray) -> np.ndarray:
+        """Whether each risk (a :meth:`score`) is above the warning threshold; a NaN risk (a row it cannot score)
+        counts as above."""
+        return ~(np.asarray(risk) <= self.threshold_)
 
 
 def auroc(score: np.ndarray, positive: np.ndarray) -> float:

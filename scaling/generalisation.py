@@ -208,11 +208,17 @@ def judged_rows(frame: pd.DataFrame) -> np.ndarray:
     return after_settling(frame) & (frame["F21"].to_numpy(float) > PEAK_FRACTION * peak)
 
 
-def training_rows(frame: pd.DataFrame, groups: Sequence[PiGroup]) -> pd.DataFrame:
-    """Rows fit for training: settled, inside the scaling domain (π1 ≥ 0.1), every group finite."""
-    ok = after_settling(frame) & in_domain(frame)
+def finite_groups(frame: pd.DataFrame, groups: Sequence[PiGroup]) -> np.ndarray:
+    """Mask of the rows of ``frame`` on which every one of ``groups`` is finite."""
+    ok = np.ones(len(frame), dtype=bool)
     for g in groups:
         ok &= np.isfinite(g.evaluate(frame).reshape(-1))
+    return ok
+
+
+def training_rows(frame: pd.DataFrame, groups: Sequence[PiGroup]) -> pd.DataFrame:
+    """Rows fit for training: settled, inside the scaling domain (π1 ≥ 0.1), every group finite."""
+    ok = after_settling(frame) & in_domain(frame) & finite_groups(frame, groups)
     return frame[ok].reset_index(drop=True)
 
 
@@ -286,11 +292,12 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
         log_pred, scale = _predict(models[name], pairs)
         pred = pairs.recover(np.exp(log_pred))
         f21 = pairs.target_values()
+        kind = row_kinds(pairs, tgt)
         features = np.column_stack([np.log(scale), np.log(novelty[name].score(pairs.pi_target)),
                                     np.abs(log_pred), np.full(len(pairs), np.log(machine_score[target])),
-                                    (row_kinds(pairs, tgt) == "static").astype(float)])
+                                    (kind == "static").astype(float)])
         g = None if models[name] is None else models[name].features(pairs)
-        return _Predicted(pairs, tgt, log_pred, scale, pred, f21, _errors(pred, f21), features, g)
+        return _Predicted(pairs, kind, log_pred, scale, pred, f21, _errors(pred, f21), features, g)
 
     calibrators: dict[str, GroupConformal] = {}
     spread_calibrators: dict[str, GroupConformal] = {}
@@ -328,9 +335,8 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
             inside = (p.pairs.log_delta >= lo) & (p.pairs.log_delta <= hi)
             lo, hi = spread_calibrators[name].interval(p.log_pred, p.scale)
             inside_spread = (p.pairs.log_delta >= lo) & (p.pairs.log_delta <= hi)
-            kind = row_kinds(p.pairs, p.tgt)
             results.append(_summarise(m, name, source_of[m] if name != "direct-Pi (ER12)" else split.reference,
-                                      p.err, kind, p.pred, p.f21, inside, inside_spread))
+                                      p.err, p.kind, p.pred, p.f21, inside, inside_spread))
             scorer = error_scores.get(name)
             risk = scorer.score(p.features) if scorer else np.full(len(p.err), np.nan)
             warn_share.setdefault(name, {})[m] = float(np.mean(scorer.warns(p.features))) if scorer else float("nan")
@@ -379,12 +385,12 @@ ERROR_FEATURES = ("ln σ of ln δ1 (ensembles; 0 otherwise)", "ln input novelty"
 
 @dataclass
 class _Predicted:
-    """One model's prediction for one machine's judged rows: the pairs, log δ1 and its scale, F21 predicted and
-    actual (N), relative error, the error score's features (:data:`ERROR_FEATURES`) and the model's feature rows
-    g (None for direct-Pi)."""
+    """One model's prediction for one machine's judged rows: the pairs, each pair's row kind (:func:`row_kinds`),
+    log δ1 and its scale, F21 predicted and actual (N), relative error, the error score's features
+    (:data:`ERROR_FEATURES`) and the model's feature rows g (None for direct-Pi)."""
 
     pairs: DeltaDataset
-    tgt: pd.DataFrame
+    kind: np.ndarray
     log_pred: np.ndarray
     scale: np.ndarray
     pred: np.ndarray

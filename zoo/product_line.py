@@ -42,6 +42,7 @@ from scaling.generalisation import (
     GeneralisationResult,
     LeaveMachineOut,
     evaluate,
+    finite_groups,
     judged_rows,
     linkage_input_groups,
 )
@@ -107,7 +108,7 @@ def build_product_line(cfg: ProductLineBuild | None = None) -> Path:
 def reference_row(source: pd.DataFrame, groups: tuple[Any, ...]) -> pd.Series:
     """The card's default source: the source machine's judged hold row at rest with the median fill (SI)."""
     rows = source[judged_rows(source) & at_rest(source)]
-    finite = np.isfinite(np.column_stack([g.evaluate(rows).reshape(-1) for g in (*groups, PI1_LINKAGE)])).all(axis=1)
+    finite = finite_groups(rows, (*groups, PI1_LINKAGE))
     rows = rows[finite]
     if rows.empty:
         raise ValueError("the reference machine has no judged rows at rest with finite groups")
@@ -119,7 +120,7 @@ def check_rows(target: pd.DataFrame, groups: tuple[Any, ...]) -> pd.DataFrame:
     quantities the model serves (SI); its source is the card's reference row."""
     digs = target[(target["kind"] == "dig") & judged_rows(target)]
     rows = digs[digs["episode"] == digs["episode"].min()]
-    finite = np.isfinite(np.column_stack([g.evaluate(rows).reshape(-1) for g in (*groups, PI1_LINKAGE)])).all(axis=1)
+    finite = finite_groups(rows, (*groups, PI1_LINKAGE))
     _, target_vars = served_variables(PI1_LINKAGE, groups, "F21")
     return rows[finite][["machine", "episode", "t", *target_vars]].reset_index(drop=True)
 

@@ -17,7 +17,7 @@ import zoo
 from scaling.conformal import RowRisk, group_weighted_quantile
 from scaling.delta_dataset import DeltaDataset
 from scaling.fitted import model_groups
-from scaling.generalisation import LeaveMachineOut, judged_rows, row_kinds
+from scaling.generalisation import LeaveMachineOut, finite_groups, judged_rows, row_kinds
 from scaling.models import load_model
 from scaling.product_line import PI1_LINKAGE, match_rows, nearest_machine
 from zoo.product_line import NAME, ProductLineBuild, build_product_line
@@ -86,7 +86,7 @@ def test_served_model_predicts_on_matched_source_rows(built: tuple[Path, Path, P
     tgt = frame[frame["machine"] == "pl1-0"].reset_index(drop=True)
     tgt = tgt[judged_rows(tgt)].reset_index(drop=True)
     groups = model_groups(model)[1]
-    ok = np.isfinite(np.column_stack([g.evaluate(tgt).reshape(-1) for g in (*groups, PI1_LINKAGE)])).all(axis=1)
+    ok = finite_groups(tgt, (*groups, PI1_LINKAGE))
     tgt = tgt[ok].reset_index(drop=True)
     source = src.iloc[match_rows(src, tgt)].reset_index(drop=True)
     with warnings.catch_warnings():
@@ -130,7 +130,7 @@ def test_risk_can_be_skipped_for_throughput(built: tuple[Path, Path, ProductLine
     tgt = frame[frame["machine"] == "mini"].reset_index(drop=True)
     tgt = tgt[judged_rows(tgt)].reset_index(drop=True)
     groups = model_groups(served.model)[1]
-    ok = np.isfinite(np.column_stack([g.evaluate(tgt).reshape(-1) for g in (*groups, PI1_LINKAGE)])).all(axis=1)
+    ok = finite_groups(tgt, (*groups, PI1_LINKAGE))
     tgt = tgt[ok].reset_index(drop=True)
     source = src.iloc[match_rows(src, tgt)].reset_index(drop=True)
     with warnings.catch_warnings():
@@ -159,7 +159,7 @@ def test_predict_command_pairs_rows_for_a_product_line_model(built: tuple[Path, 
     src = frame[frame["machine"] == "er12"].reset_index(drop=True)[keep]
     tgt = frame[frame["machine"] == "pl1-0"].reset_index(drop=True)
     tgt = tgt[judged_rows(tgt)].reset_index(drop=True)
-    ok = np.isfinite(np.column_stack([g.evaluate(tgt).reshape(-1) for g in (*groups, PI1_LINKAGE)])).all(axis=1)
+    ok = finite_groups(tgt, (*groups, PI1_LINKAGE))
     tgt = tgt[ok].reset_index(drop=True)[[c for c in keep if c != "F21"]]
     src.to_csv(tmp_path / "src.csv", index=False)
     tgt.to_csv(tmp_path / "tgt.csv", index=False)

@@ -317,7 +317,7 @@ class ScalingModel:
         if self.risk is not None and not isinstance(self.kernel, GRUKernel):  # its warnings replace the range's
             if risk:
                 row_risk = self._row_risk(x, delta)
-                warned = row_risk > self.risk.score.threshold_
+                warned = self.risk.score.above(row_risk)
                 if warned.any():
                     warnings.warn(f"{self.name}: {int(warned.sum())} of {len(warned)} target rows are likely more "
                                   f"than {self.risk.score.miss:.0%} off (error score above its threshold, calibrated "
