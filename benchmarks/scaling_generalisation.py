@@ -108,12 +108,17 @@ def report(table: pd.DataFrame, meta: dict) -> str:
         "Source of every target: its nearest training machine by design (direct-Pi (ER12): the ER12). "
         "Intervals: split conformal over the calibration machines (each weighing the same) on a per-row scale, "
         "either learned from the error score's features (cross-fitted over the calibration machines, "
-        "`scaling.conformal.ResidualScale`) or the model's own spread (an ensemble's σ, 1 for a point model).", "",
+        "`scaling.conformal.ResidualScale`) or the model's own spread (an ensemble's σ, 1 for a point model); both "
+        "take the pooled quantile (90 % of the rows of an average machine). Served: the interval a checkpoint such "
+        "as `statics-pl` gives (`scaling.conformal.RowInterval`): a scale learned from what a served model knows "
+        "(novelty of its feature row, |ln δ1|, bucket at rest) and a machine-level bound, 90 % of the rows of 90 % "
+        "of the calibration machines (`scaling.conformal.machine_level_quantile`).", "",
         "## Over the drawn test machines", "",
         "| model | dynamic rows: MAPE median / worst [%] | static rows: MAPE median / worst [%] | "
         "peak F21 error median [%] | "
-        "90 % coverage min–max: learned scale / own spread | beats nearest-machine direct-Pi on |",
-        "|---|---|---|---|---|---|",
+        "90 % coverage min–max: learned scale / own spread / served | machines covered 85–95 % (served) | "
+        "beats nearest-machine direct-Pi on |",
+        "|---|---|---|---|---|---|---|",
     ]
     base = drawn[drawn["model"] == "direct-Pi (nearest machine)"].set_index("machine")
     for model, g in drawn.groupby("model", sort=False):
@@ -122,11 +127,14 @@ def report(table: pd.DataFrame, meta: dict) -> str:
         ref = (base["dynamic_mape"] + base["static_mape"]) / 2
         beats = int((both < ref.reindex(both.index)).sum())
         cov_s = " / ".join(f"{c.min():.2f}–{c.max():.2f}" if len(c) else "–"
-                           for c in (g["coverage"].dropna(), g["coverage_spread"].dropna()))
+                           for c in (g["coverage"].dropna(), g["coverage_spread"].dropna(),
+                                     g["coverage_served"].dropna()))
+        served = g["coverage_served"].dropna()
+        band = f"{int(((served >= 0.85) & (served <= 0.95)).sum())} of {len(served)}" if len(served) else "–"
         lines.append(f"| {model} | {g['dynamic_mape'].median():.1f} / {g['dynamic_mape'].max():.1f} | "
                      f"{g['static_mape'].median():.1f} / {g['static_mape'].max():.1f} | "
                      f"{g['peak_error'].median():.1f} | "
-                     f"{cov_s} | {beats} of {len(g)} |")
+                     f"{cov_s} | {band} | {beats} of {len(g)} |")
     ex = meta["extrapolation"]
     warned = ", ".join(m for m, w in ex["warned"].items() if w) or "none"
     lines += ["", "## Which predictions to distrust", "",
@@ -159,11 +167,11 @@ def report(table: pd.DataFrame, meta: dict) -> str:
               "and whether the bucket is at rest."]
     lines += ["", "## Every test machine", "",
               "| machine | model | source | dynamic MAPE / median [%] | static MAPE / median [%] | peak [%] | "
-              "coverage: learned / spread | rows > 10 % off |", "|---|---|---|---|---|---|---|---|"]
+              "coverage: learned / spread / served | rows > 10 % off |", "|---|---|---|---|---|---|---|---|"]
     for r in table.itertuples():
         lines.append(f"| {r.machine} | {r.model} | {r.source} | {r.dynamic_mape:.1f} / {r.dynamic_median:.1f} | "
                      f"{r.static_mape:.1f} / {r.static_median:.1f} | {r.peak_error:.1f} | "
-                     f"{r.coverage:.2f} / {r.coverage_spread:.2f} | "
+                     f"{r.coverage:.2f} / {r.coverage_spread:.2f} / {r.coverage_served:.2f} | "
                      f"{100 * r.miss_share:.0f} % |")
     share = pd.Series(meta["relief_share"])
     lines += ["", f"Fit seconds: {', '.join(f'{k} {v:.0f}' for k, v in meta['fit_seconds'].items())}.", "",

@@ -55,6 +55,27 @@ def group_weighted_quantile(scores: np.ndarray, groups: np.ndarray, level: float
     return float(s[order][min(int(np.searchsorted(cdf, target - 1e-12)), s.size - 1)])
 
 
+def machine_level_quantile(scores: np.ndarray, groups: np.ndarray, level: float, machine_share: float) -> float:
+    """The score bound that covers ``level`` of the rows of ``machine_share`` of the groups (machines).
+
+    Every group's own ``level`` quantile is taken, then the ``machine_share`` quantile of those (linear
+    interpolation over the groups). Where the pooled :func:`group_weighted_quantile` covers ``level`` of the rows
+    of an *average* new machine, and so under-covers the machines whose errors are larger than the calibration
+    machines' typical ones, this bound is a tolerance statement per machine: "at least ``level`` of a new machine's
+    rows, for ``machine_share`` of new machines". It is wider, and the price is over-coverage on the easy machines.
+    """
+    s, g = np.asarray(scores, dtype=float), np.asarray(groups).astype(str)
+    if not 0 < level < 1 or not 0 < machine_share <= 1:
+        raise ValueError(f"level must be in (0, 1) and machine_share in (0, 1], got {level}, {machine_share}")
+    ok = np.isfinite(s)
+    s, g = s[ok], g[ok]
+    names = np.unique(g)
+    if names.size < 2:
+        raise ValueError(f"a machine-level bound needs at least two calibration machines, got {names.size}")
+    per_machine = np.array([np.quantile(s[g == n], level) for n in names])
+    return float(np.quantile(per_machine, machine_share))
+
+
 def machine_weights(groups: np.ndarray) -> np.ndarray:
     """Row weights summing to 1 with every group (machine) weighing the same, whatever its row count."""
     _, inverse, counts = np.unique(np.asarray(groups).astype(str), return_inverse=True, return_counts=True)
@@ -93,10 +114,15 @@ class GroupConformal:
     ``fit(residual, scale, groups)`` takes ``residual = ln(actual) − ln(predicted)`` on calibration machines never
     used in training, ``scale`` > 0 per row (e.g. the ensemble's standard deviation of ln δ1; ones for a point
     model) and the machine of each row. ``interval(log_pred, scale)`` returns the bounds on the log scale.
+
+    ``machine_share`` (None: off) switches from the pooled quantile (``coverage`` of the rows of an average new
+    machine) to the machine-level bound of :func:`machine_level_quantile` (``coverage`` of the rows of
+    ``machine_share`` of new machines).
     """
 
     coverage: float = 0.9
     finite_sample: bool = False
+    machine_share: float | None = None
     quantile_: float | None = None
     n_groups_: int = 0
 
@@ -108,8 +134,12 @@ class GroupConformal:
             raise ValueError("residual, scale and groups must have one entry per row")
         if np.any(sc[np.isfinite(sc)] <= 0):
             raise ValueError("scales must be > 0")
-        self.quantile_ = group_weighted_quantile(np.abs(r) / sc, np.asarray(groups), self.coverage,
-                                                 finite_sample=self.finite_sample)
+        if self.machine_share is None:
+            self.quantile_ = group_weighted_quantile(np.abs(r) / sc, np.asarray(groups), self.coverage,
+                                                     finite_sample=self.finite_sample)
+        else:
+            self.quantile_ = machine_level_quantile(np.abs(r) / sc, np.asarray(groups), self.coverage,
+                                                    self.machine_share)
         self.n_groups_ = len(set(np.asarray(groups).astype(str)))
         return self
 
@@ -155,6 +185,21 @@ class ResidualScale:
         x = np.atleast_2d(np.asarray(features, dtype=float))
         z = np.nan_to_num((x - self.mean_) / self.std_)
         return np.exp(self.coef_[0] + z @ self.coef_[1:])
+
+    def state(self) -> dict[str, Any]:
+        """JSON-able parameters of a fitted instance (:meth:`from_state` rebuilds it)."""
+        if self.coef_ is None or self.mean_ is None or self.std_ is None:
+            raise RuntimeError("ResidualScale is not fitted")
+        return {"l2": self.l2, "floor": self.floor, "mean": self.mean_.tolist(), "std": self.std_.tolist(),
+                "coef": self.coef_.tolist()}
+
+    @classmethod
+    def from_state(cls, params: dict[str, Any]) -> ResidualScale:
+        out = cls(l2=float(params["l2"]), floor=float(params["floor"]))
+        out.mean_, out.std_, out.coef_ = (np.asarray(params[k], dtype=float) for k in ("mean", "std", "coef"))
+        if not out.mean_.shape == out.std_.shape == (out.coef_.shape[0] - 1,):
+            raise ValueError("residual-scale parameters of inconsistent lengths")
+        return out
 
     def cross_fit(self, features: np.ndarray, residual: np.ndarray, groups: np.ndarray) -> np.ndarray:
         """Out-of-machine scales for the calibration rows; leaves ``self`` fitted on all rows."""
@@ -426,3 +471,50 @@ class RowRisk:
     @classmethod
     def from_state(cls, params: dict[str, Any], rows: np.ndarray) -> RowRisk:
         return cls(InputNovelty.from_state(params["novelty"], rows), ErrorScore.from_state(params["score"]))
+
+
+@dataclass
+class RowInterval:
+    """A per-row interval on ln δ1 that a served model can compute: ln δ1 ± q_c · s(x), where s is a
+    :class:`ResidualScale` on the served features of :meth:`RowRisk.features` (novelty of the feature row, |ln δ1|,
+    bucket at rest) and q_c, per coverage c, the machine-level bound of :func:`machine_level_quantile` on the
+    cross-fitted calibration scores |residual| / s: c of the rows of ``machine_share`` of new machines.
+
+    The interval widens where the served features say the model is on less familiar ground, and its calibration
+    is per machine rather than pooled over rows, which is what a user scaling to one new machine relies on.
+    """
+
+    scale: ResidualScale
+    quantiles: dict[float, float]
+    machine_share: float
+
+    @classmethod
+    def fit(cls, features: np.ndarray, residual: np.ndarray, groups: np.ndarray, *,
+            coverages: Sequence[float] = (0.5, 0.8, 0.9, 0.95), machine_share: float = 0.9) -> RowInterval:
+        """``features``: :meth:`RowRisk.features` of the calibration rows; ``residual``: ln δ1 actual − predicted;
+        ``groups``: their machines (at least two)."""
+        x, r, g = _calibration_rows(features, residual, groups, "residual")
+        scale = ResidualScale()
+        scores = np.abs(r) / scale.cross_fit(x, r, g)
+        return cls(scale, {float(c): machine_level_quantile(scores, g, float(c), machine_share) for c in coverages},
+                   float(machine_share))
+
+    def half_width(self, features: np.ndarray, coverage: float) -> np.ndarray:
+        """q_c · s(x) per row (ln δ1 units).
+
+        Raises:
+            ValueError: no bound stored at ``coverage``.
+        """
+        if float(coverage) not in self.quantiles:
+            raise ValueError(f"learned-scale intervals are stored at coverage {sorted(self.quantiles)}, not {coverage}")
+        return self.quantiles[float(coverage)] * self.scale.scale(features)
+
+    def state(self) -> dict[str, Any]:
+        """JSON-able parameters (:meth:`from_state` rebuilds the instance)."""
+        return {"scale": self.scale.state(), "quantiles": {str(c): q for c, q in self.quantiles.items()},
+                "machine_share": self.machine_share, "features": list(RowRisk.FEATURES)}
+
+    @classmethod
+    def from_state(cls, params: dict[str, Any]) -> RowInterval:
+        return cls(ResidualScale.from_state(params["scale"]),
+                   {float(c): float(q) for c, q in params["quantiles"].items()}, float(params["machine_share"]))

@@ -37,6 +37,7 @@ from scaling.conformal import (
     GroupConformal,
     InputNovelty,
     ResidualScale,
+    RowInterval,
     RowRisk,
     auroc,
 )
@@ -164,8 +165,9 @@ class LeaveMachineOut:
 class MachineResult:
     """Per held-out machine and model: errors in % on dynamic and static rows, peak F21 error (dynamic rows),
     90 % interval coverage (``coverage``: conformal on the learned residual scale, :class:`ResidualScale`;
-    ``coverage_spread``: conformal on the model's own spread, the ensemble's σ or 1), judged rows and the share of
-    them more than 10 % off."""
+    ``coverage_spread``: conformal on the model's own spread, the ensemble's σ or 1; ``coverage_served``: the
+    interval a served checkpoint gives, :class:`~scaling.conformal.RowInterval`, NaN for direct-Pi), judged rows and
+    the share of them more than 10 % off."""
 
     machine: str
     model: str
@@ -177,6 +179,7 @@ class MachineResult:
     peak_error: float
     coverage: float
     coverage_spread: float
+    coverage_served: float
     rows: int
     miss_share: float
 
@@ -187,7 +190,8 @@ class GeneralisationResult:
     a model needs: the fitted ``models``, each model's ln δ1 residuals on the calibration machines with the machine
     of each row (``calibration``), the feature range of its training pairs (``training_range``: min, max) and a
     seeded sample of at most :data:`TRAINING_SAMPLE` of their feature rows (``training_sample``) and the
-    risk a served model can compute per row (``row_risk``, :class:`~scaling.conformal.RowRisk`)."""
+    risk and interval a served model can compute per row (``row_risk``, :class:`~scaling.conformal.RowRisk`;
+    ``row_interval``, :class:`~scaling.conformal.RowInterval`)."""
 
     rows: list[MachineResult]
     extrapolation: dict[str, Any] = field(default_factory=dict)
@@ -197,6 +201,7 @@ class GeneralisationResult:
     training_range: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     training_sample: dict[str, np.ndarray] = field(default_factory=dict)
     row_risk: dict[str, RowRisk] = field(default_factory=dict)
+    row_interval: dict[str, RowInterval] = field(default_factory=dict)
 
     def frame(self) -> pd.DataFrame:
         return pd.DataFrame([r.__dict__ for r in self.rows])
@@ -304,6 +309,7 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
     scales: dict[str, ResidualScale] = {}
     error_scores: dict[str, ErrorScore] = {}
     row_risks: dict[str, RowRisk] = {}
+    row_intervals: dict[str, RowInterval] = {}
     for name in models:
         cal = [predict(name, m) for m in split.calibration]
         grp = np.concatenate([np.full(len(c.err), m) for c, m in zip(cal, split.calibration, strict=True)])
@@ -319,9 +325,11 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
             say(f"{name}: no error score ({exc})")
             continue
         if models[name] is not None:
-            row_risks[name] = RowRisk.fit(training_sample[name], np.concatenate([c.g for c in cal]),
-                                          np.concatenate([c.log_pred for c in cal]), features[:, -1],
-                                          np.concatenate([c.err for c in cal]), grp, miss=MISS, seed=seed)
+            cal_g, cal_log_pred = np.concatenate([c.g for c in cal]), np.concatenate([c.log_pred for c in cal])
+            risk = row_risks[name] = RowRisk.fit(training_sample[name], cal_g, cal_log_pred, features[:, -1],
+                                                 np.concatenate([c.err for c in cal]), grp, miss=MISS, seed=seed)
+            row_intervals[name] = RowInterval.fit(RowRisk.features(risk.novelty, cal_g, cal_log_pred,
+                                                                   features[:, -1]), residual, grp)
 
     auroc_rows: dict[str, tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray], list[np.ndarray]]] = {}
     warn_share: dict[str, dict[str, float]] = {}
@@ -335,8 +343,13 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
             inside = (p.pairs.log_delta >= lo) & (p.pairs.log_delta <= hi)
             lo, hi = spread_calibrators[name].interval(p.log_pred, p.scale)
             inside_spread = (p.pairs.log_delta >= lo) & (p.pairs.log_delta <= hi)
+            inside_served = np.full(len(p.err), np.nan)
+            if name in row_intervals and p.g is not None:
+                half = row_intervals[name].half_width(
+                    RowRisk.features(row_risks[name].novelty, p.g, p.log_pred, p.features[:, -1]), 0.9)
+                inside_served = (np.abs(p.pairs.log_delta - p.log_pred) <= half).astype(float)
             results.append(_summarise(m, name, source_of[m] if name != "direct-Pi (ER12)" else split.reference,
-                                      p.err, p.kind, p.pred, p.f21, inside, inside_spread))
+                                      p.err, p.kind, p.pred, p.f21, inside, inside_spread, inside_served))
             scorer = error_scores.get(name)
             risk = scorer.score(p.features) if scorer else np.full(len(p.err), np.nan)
             warn_share.setdefault(name, {})[m] = float(np.mean(scorer.warns(p.features))) if scorer else float("nan")
@@ -356,7 +369,7 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
         err = _errors(pred, f21)
         label = np.where(at_rest(tgt), "static", "dynamic")
         results.append(_summarise(m, "linkage statics", "-", err, label, pred, f21,
-                                  np.full(len(err), np.nan), np.full(len(err), np.nan)))
+                                  *(np.full(len(err), np.nan) for _ in range(3))))
     extrap_out: dict[str, Any] = {
         "threshold": extrap.threshold_, "machine_score": {m: machine_score[m] for m in split.test},
         "warned": {m: bool(machine_score[m] > extrap.threshold_) for m in split.test},
@@ -375,7 +388,7 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
             extrap_out["auroc_ensemble_spread"][name] = auroc(np.concatenate(spread), y)
     fitted = {name: m for name, m in models.items() if m is not None}
     return GeneralisationResult(results, extrap_out, fit_seconds, fitted, calibration, training_range,
-                                training_sample, row_risks)
+                                training_sample, row_risks, row_intervals)
 
 
 #: Columns of the per-row features of the error score (:class:`scaling.conformal.ErrorScore`).
@@ -409,7 +422,8 @@ def row_kinds(pairs: DeltaDataset, tgt: pd.DataFrame) -> np.ndarray:
 
 
 def _summarise(machine: str, model: str, source: str, err: np.ndarray, kind: np.ndarray, pred: np.ndarray,
-               f21: np.ndarray, inside: np.ndarray, inside_spread: np.ndarray) -> MachineResult:
+               f21: np.ndarray, inside: np.ndarray, inside_spread: np.ndarray,
+               inside_served: np.ndarray) -> MachineResult:
     dig, hold = kind == "dynamic", kind == "static"
 
     def pct(fn: Callable[[np.ndarray], float], mask: np.ndarray) -> float:
@@ -423,5 +437,6 @@ def _summarise(machine: str, model: str, source: str, err: np.ndarray, kind: np.
         return float(np.nanmean(x)) if np.isfinite(x).any() else float("nan")
 
     return MachineResult(machine, model, source, pct(np.mean, dig), pct(np.median, dig), pct(np.mean, hold),
-                         pct(np.median, hold), peak, share(inside), share(inside_spread), len(err),
+                         pct(np.median, hold), peak, share(inside), share(inside_spread),
+                         share(inside_served), len(err),
                          float(np.mean(err > MISS)))

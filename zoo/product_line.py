@@ -10,9 +10,11 @@ values both.
 
 Its card says what the leave-machine-out proof measured: per held-out machine (drawn with another seed, never
 used in training or calibration, plus the ``mini`` and ``wa475`` presets) the F21 error on dig and hold rows,
-the peak error and the coverage of the card's interval; the interval is the group-weighted quantile of ln δ1
-residuals over the 16 calibration machines (every machine weighing the same), so it is calibrated for "a new
-machine of the line", not for rows of machines the model saw. It also carries an error score served per row
+the peak error and the coverage of the card's interval. The interval is calibrated on 16 calibration machines
+(held out of training) for "a new machine of the line", not for rows of machines the model saw: per row, ln δ1 ±
+q·s(x) with a width s learnt from what the served model knows of the row and q covering 90 % of the rows of 90 % of
+the calibration machines (:class:`scaling.conformal.RowInterval`); row by row (no novelty query) the pooled
+group-weighted residual quantiles. It also carries an error score served per row
 (:class:`scaling.conformal.RowRisk`, ``ScaledForce.risk``): its warnings replace the training-range rule, which
 fired on a quarter of a new machine's rows at 0.5 % error.
 
@@ -139,7 +141,8 @@ def card_fields(model: FFNN, result: GeneralisationResult, reference: pd.Series,
     ours = table[table["model"] == NAME].set_index("machine")
     base = table[table["model"] == "direct-Pi (nearest machine)"].set_index("machine")
     per_machine = {m: {"source": r.source, "dynamic_mape_pct": r.dynamic_mape, "static_mape_pct": r.static_mape,
-                       "peak_error_pct": r.peak_error, "interval_coverage": r.coverage_spread, "rows": r.rows,
+                       "peak_error_pct": r.peak_error, "interval_coverage": r.coverage_served,
+                       "pooled_interval_coverage": r.coverage_spread, "rows": r.rows,
                        "rows_over_10pct": r.miss_share,
                        "direct_pi_dynamic_mape_pct": float(base.loc[m, "dynamic_mape"]),
                        "direct_pi_static_mape_pct": float(base.loc[m, "static_mape"]),
@@ -162,12 +165,19 @@ def card_fields(model: FFNN, result: GeneralisationResult, reference: pd.Series,
                    "row": {k: float(reference[k]) for k in source_vars},
                    "variables": source_vars, "units": {k: QUANTITY_UNITS[k] for k in source_vars}},
         "inputs": [{"name": k, "unit": QUANTITY_UNITS[k]} for k in target_vars],
-        "interval": {"method": "residual-quantiles", "coverage": cfg.coverage,
+        "interval": {"method": "learned-scale", "coverage": cfg.coverage,
+                     "learned_scale": result.row_interval[NAME].state(),
                      "log_delta_residual_quantiles": quantiles,
                      "calibration": f"ln δ1 residuals on the {len(split.calibration)} calibration machines "
-                                    "(held out of training), every machine weighing the same: split conformal over "
-                                    "machines (scaling.conformal.group_weighted_quantile)",
-                     "description": "δ1·exp(q) for the residual quantiles q, mapped to F21 (bounds swap)"},
+                                    "(held out of training). learned_scale (batch path, risk computed): "
+                                    "ln δ1 ± q·s(x), s learnt from the served features (scaling.conformal.RowInterval, "
+                                    "cross-fitted over the calibration machines), q covering the coverage share of "
+                                    "the rows of machine_share of the calibration machines "
+                                    "(scaling.conformal.machine_level_quantile). log_delta_residual_quantiles (row "
+                                    "by row, or risk=False): every machine weighing the same, pooled "
+                                    "(scaling.conformal.group_weighted_quantile)",
+                     "description": "δ1·exp(±q·s) or δ1·exp(q) for the residual quantiles q, mapped to F21 "
+                                    "(bounds swap)"},
         "training_range": {"feature": "g_n = s_n·[asinh(π_n^s/2ε_n) − asinh(π_n^t/2ε_n)], then s_n·asinh(π_n^s/2ε_n) "
                                       "(include_source), on the training pairs",
                            "groups": [g.expression() for g in inputs], "min": lo, "max": hi, "margin": RANGE_MARGIN,
@@ -187,8 +197,9 @@ def card_fields(model: FFNN, result: GeneralisationResult, reference: pd.Series,
                         "dynamic_mape_pct_worst": float(drawn["dynamic_mape"].max()),
                         "static_mape_pct_median": float(drawn["static_mape"].median()),
                         "static_mape_pct_worst": float(drawn["static_mape"].max()),
-                        "interval_coverage_min": float(drawn["coverage_spread"].min()),
-                        "interval_coverage_max": float(drawn["coverage_spread"].max()),
+                        "interval_coverage_min": float(drawn["coverage_served"].min()),
+                        "interval_coverage_max": float(drawn["coverage_served"].max()),
+                        "interval_machines_85_95": int(drawn["coverage_served"].between(0.85, 0.95).sum()),
                         "risk_auroc": result.extrapolation["auroc_row_risk"][NAME],
                         "risk_warned_share_median": float(np.median(
                             [result.extrapolation["row_risk_warn_share"][NAME][m] for m in drawn.index]))},

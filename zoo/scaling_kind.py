@@ -12,7 +12,8 @@ Card fields (besides the common ones, :mod:`zoo.checkpoint`):
 ``groups``            the group set (``eq10``/``eq23``): π1 and the input groups with their exponents
 ``source``            the calibrated reference row the model was trained against (SI), the default source
 ``inputs``            target quantities with their SI units
-``interval``          method (``residual-quantiles`` or ``ensemble``), coverage, quantiles of ln δ1 residuals
+``interval``          method (``residual-quantiles``, ``ensemble`` or ``learned-scale``), coverage, quantiles of ln δ1
+                      residuals; ``learned-scale`` adds the per-row interval (:class:`scaling.conformal.RowInterval`)
 ``training_range``    per input group, min/max of the distortion feature g on the training pairs
 ``training``          machines, soils, dataset spec and hashes, pipeline config, seed, code version, fit time
 ``metrics``           held-out episodes (R² of δ1), held-out machines, miniature errors, the check set

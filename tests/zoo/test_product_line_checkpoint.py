@@ -1,5 +1,6 @@
 """The product-line checkpoint: built on a tiny line, its card reports every held-out machine, it serves what the
-fitted model predicts on matched source rows, and its interval is the calibration machines' residual quantile."""
+fitted model predicts on matched source rows, its interval is learnt per row on the calibration machines (the
+pooled residual quantile row by row)."""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ import pytest
 from safetensors.numpy import load_file
 
 import zoo
-from scaling.conformal import RowRisk, group_weighted_quantile
+from scaling.conformal import RowInterval, RowRisk, group_weighted_quantile
 from scaling.delta_dataset import DeltaDataset
 from scaling.fitted import model_groups
 from scaling.generalisation import LeaveMachineOut, finite_groups, judged_rows, row_kinds
@@ -104,6 +105,12 @@ def test_served_model_predicts_on_matched_source_rows(built: tuple[Path, Path, P
     assert out.risk is not None and np.all((out.risk >= 0) & (out.risk <= 1))
     np.testing.assert_allclose(out.risk, risk.risk(model.features(pairs), model.predict_log(pairs), static),
                                rtol=1e-6, atol=1e-9)
+    # the served interval: ln δ1 ± q·s(x) on the same features, F21 = F21_linkage·π1(source)/δ1
+    assert out.interval_method == card["interval"]["method"] == "learned-scale"
+    half = RowInterval.from_state(card["interval"]["learned_scale"]).half_width(
+        RowRisk.features(risk.novelty, model.features(pairs), model.predict_log(pairs), static), 0.9)
+    np.testing.assert_allclose(out.lower, pairs.recover(model.predict(pairs) * np.exp(half)), rtol=1e-5)
+    np.testing.assert_allclose(out.upper, pairs.recover(model.predict(pairs) * np.exp(-half)), rtol=1e-5)
     with pytest.raises(ValueError, match="F21_linkage"):
         served.scale_force(source, tgt.drop(columns=["F21_linkage"]))
 
@@ -122,7 +129,7 @@ def test_rebuild_is_deterministic(built: tuple[Path, Path, ProductLineBuild], tm
 
 def test_risk_can_be_skipped_for_throughput(built: tuple[Path, Path, ProductLineBuild]) -> None:
     """``risk=False``: the same forces, no risk, no warning (the error score's warnings replace the training-range
-    rule for such checkpoints, so none fires)."""
+    rule for such checkpoints, so none fires), and the pooled residual interval instead of the learned one."""
     path, _, cfg = built
     served = zoo.load(path)
     frame = cfg.layout.load(cfg.data_dir, executor="serial", progress=False)
@@ -141,6 +148,10 @@ def test_risk_can_be_skipped_for_throughput(built: tuple[Path, Path, ProductLine
         fast = served.scale_force(source, tgt, risk=False)
     assert fast.risk is None and full.risk is not None
     np.testing.assert_array_equal(fast.force, full.force)
+    assert (fast.interval_method, full.interval_method) == ("residual-quantiles", "learned-scale")
+    q_lo, q_hi = zoo.card(path)["interval"]["log_delta_residual_quantiles"]["0.9"]
+    np.testing.assert_allclose(fast.upper, fast.force * np.exp(-q_lo), rtol=1e-6)  # F21 falls as δ1 rises
+    np.testing.assert_allclose(fast.lower, fast.force * np.exp(-q_hi), rtol=1e-6)
 
 
 def test_predict_command_pairs_rows_for_a_product_line_model(built: tuple[Path, Path, ProductLineBuild],

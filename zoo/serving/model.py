@@ -9,8 +9,10 @@ twin row the checkpoint was trained against, ``model.reference``), target = the 
 so the target needs only measurable quantities (F31, cylinder forces, bucket mass and centre of mass, bucket
 accelerations or speeds; ``model.target_variables``), never F21 itself. The interval comes from the card
 (``card["interval"]``): held-out residual quantiles of ln δ1 for FFNN and GRU models, the ensemble's predictive
-spread for the deep ensemble. Targets whose distortion features fall outside the training range stored on the card
-raise an :class:`ExtrapolationWarning` (the prediction is still returned, flagged per row).
+spread for the deep ensemble, or (``learned-scale``, product-line checkpoints) a per-row width learned from what
+the served model knows of the row (:class:`scaling.conformal.RowInterval`; batch path with the risk computed, the
+pooled residual quantiles otherwise). Targets whose distortion features fall outside the training range stored on
+the card raise an :class:`ExtrapolationWarning` (the prediction is still returned, flagged per row).
 
 Three paths share the same arithmetic: :meth:`ScalingModel.scale_force` (any table with units, batch),
 :meth:`ScalingModel.predict_row` (one row as floats in SI, the lean path) and :meth:`ScalingModel.stream`
@@ -37,7 +39,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import pandas as pd
 
-from scaling.conformal import RowRisk
+from scaling.conformal import RowInterval, RowRisk
 from scaling.evaluation import at_rest
 from scaling.factors import LogDistortion, scaled_variable
 from scaling.fitted import STATIC_STEPS, model_groups
@@ -145,6 +147,11 @@ class ScalingModel:
         interval = card["interval"]
         self.coverage = float(interval["coverage"])
         self.interval_method = str(interval["method"])
+        self._row_interval: RowInterval | None = None
+        if self.interval_method == "learned-scale":
+            if risk is None:
+                raise ValueError("a learned-scale interval needs the checkpoint's risk (its novelty rows)")
+            self._row_interval = RowInterval.from_state(interval["learned_scale"])
         self._quantiles = {float(c): (float(q[0]), float(q[1]))
                            for c, q in interval.get("log_delta_residual_quantiles", {}).items()}
         rng = card["training_range"]
@@ -263,7 +270,9 @@ class ScalingModel:
                 row is held for :data:`~scaling.fitted.STATIC_STEPS` steps, as in the miniature validation.
             threads: cores for a large batch (default every usable core; see :meth:`predict_array`).
             risk: compute the per-row error score where the checkpoint has one (``out.risk``; a nearest-neighbour
-                query per row, about 20 000 rows/s per core); ``False`` skips it for throughput.
+                query per row, about 20 000 rows/s per core); ``False`` skips it for throughput, and a
+                ``learned-scale`` interval then falls back to the pooled residual quantiles
+                (``out.interval_method`` says which).
 
         Raises:
             InputError: missing quantities, bad units, non-finite values, or a source/target size mismatch.
@@ -314,9 +323,15 @@ class ScalingModel:
         if not np.all(np.isfinite(force)):
             raise InputError(f"target: {int((~np.isfinite(force)).sum())} rows give a non-finite {self.variable}")
         row_risk = None
+        method = "residual-quantiles" if self._row_interval is not None else self.interval_method
         if self.risk is not None and not isinstance(self.kernel, GRUKernel):  # its warnings replace the range's
             if risk:
-                row_risk = self._row_risk(x, delta)
+                features = self._risk_features(x, delta)
+                row_risk = self.risk.score.score(features)
+                if self._row_interval is not None:  # δ1·e^(±h) gives F21·e^(∓h/exponent)
+                    half = self._row_interval.half_width(features, spread[0]) * self._inv_exp
+                    lo, hi = force * np.exp(-half), force * np.exp(half)
+                    method = self.interval_method
                 warned = self.risk.score.above(row_risk)
                 if warned.any():
                     warnings.warn(f"{self.name}: {int(warned.sum())} of {len(warned)} target rows are likely more "
@@ -325,20 +340,19 @@ class ScalingModel:
                                   stacklevel=3)
         elif outside.any():
             self._warn(g_out, int(outside.sum()), len(outside))
-        return ScaledForce(self.variable, self.unit, force, lo, hi, delta, outside, spread[0], self.interval_method,
-                           row_risk)
+        return ScaledForce(self.variable, self.unit, force, lo, hi, delta, outside, spread[0], method, row_risk)
 
-    def _row_risk(self, x: np.ndarray, delta: np.ndarray) -> np.ndarray:
-        """P(error > miss) of every row (:class:`~scaling.conformal.RowRisk`): its features g, |ln δ1| and
-        whether the bucket is at rest (:func:`scaling.evaluation.at_rest` on the target's F31, m_b, x_b, a1 and α1;
-        moving when the model does not take them)."""
+    def _risk_features(self, x: np.ndarray, delta: np.ndarray) -> np.ndarray:
+        """The served features of every row (:meth:`scaling.conformal.RowRisk.features`): the novelty of its
+        features g, |ln δ1| and whether the bucket is at rest (:func:`scaling.evaluation.at_rest` on the target's
+        F31, m_b, x_b, a1 and α1; moving when the model does not take them)."""
         assert self.risk is not None
         g = np.concatenate([self._features_of(x[s:s + CHUNK], s)[0] for s in range(0, len(x), CHUNK)])
         col = {v: i for i, v in enumerate(self.target_variables)}
         needed = ("F31", "m_b", "x_b", "a1", "alpha1")
         static = (at_rest(pd.DataFrame({v: x[:, col[v]] for v in needed})) if all(v in col for v in needed)
                   else np.zeros(len(x), dtype=bool))
-        return self.risk.risk(g, np.log(delta), static)
+        return RowRisk.features(self.risk.novelty, g, np.log(delta), static)
 
     def _chunk(self, x: np.ndarray, start: int, spread: tuple[float, float, float]) -> tuple[np.ndarray, ...]:
         """:meth:`_finish` of feed-forward rows ``start:start + CHUNK``."""
@@ -415,7 +429,8 @@ class ScalingModel:
         """(force, lower, upper, δ1, extrapolated, next state) for one SI row; ``state`` is the GRU hidden state
         (``None`` for feed-forward models), ``source`` this row's own source row (SI floats in
         :attr:`source_variables` order; default the bound source, which must then be one row). Used by
-        :meth:`predict_row` and :class:`~zoo.serving.stream.Stream`."""
+        :meth:`predict_row` and :class:`~zoo.serving.stream.Stream`. A ``learned-scale`` checkpoint gives its
+        pooled residual interval here (the per-row width needs a nearest-neighbour query: batch path)."""
         if source is not None:
             features, pi1 = self._row_source(source)
         elif self._n_source != 1:
