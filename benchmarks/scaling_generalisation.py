@@ -141,14 +141,16 @@ def report(table: pd.DataFrame, meta: dict) -> str:
               "Error score (`scaling.conformal.ErrorScore`): the probability that a row is more than 10 % off, by a "
               "logistic regression on what is known before the truth (the ensemble's σ of ln δ1, the row's input "
               "novelty, the size of the correction |ln δ1|, the machine's design distance, whether the bucket is at "
-              "rest), fitted on the "
-              "calibration machines; it warns above the 95th percentile of their scores. AUROC: how well a score "
+              "rest), fitted on the calibration machines; it warns above a threshold that keeps the warnings to at "
+              "most 5 % of the rows of 90 % of the calibration machines (`scaling.conformal.machine_level_quantile`). "
+              "AUROC: how well a score "
               "separates the rows of the test machines more than 10 % off from the rest (0.5 = chance). "
               f"Design distance alone: threshold {ex['threshold']:.2f} (95th percentile of the calibration "
               f"machines); machines it warns on: {warned}.", "",
               "| model | AUROC: error score | rows warned on, median / max over the drawn test machines | "
-              "AUROC: served risk | rows warned on by it | AUROC: design distance | AUROC: ensemble spread |",
-              "|---|---|---|---|---|---|---|"]
+              "AUROC: served risk | rows warned on by it | rows ≤ 10 % off warned on by it (false alarms) | "
+              "AUROC: design distance | AUROC: ensemble spread |",
+              "|---|---|---|---|---|---|---|---|"]
 
     def fmt(x: float | None) -> str:
         return "–" if x is None or not np.isfinite(x) else f"{x:.2f}"
@@ -160,7 +162,8 @@ def report(table: pd.DataFrame, meta: dict) -> str:
     for name, a in ex["auroc_design_distance"].items():
         lines.append(f"| {name} | {fmt(ex['auroc_error_score'].get(name))} | "
                      f"{shares(ex['warn_share'].get(name, {}))} | {fmt(ex['auroc_row_risk'].get(name))} | "
-                     f"{shares(ex['row_risk_warn_share'].get(name, {}))} | {fmt(a)} | "
+                     f"{shares(ex['row_risk_warn_share'].get(name, {}))} | "
+                     f"{shares(ex.get('row_risk_false_alarms', {}).get(name, {}))} | {fmt(a)} | "
                      f"{fmt(ex['auroc_ensemble_spread'].get(name))} |")
     lines += ["", "Served risk (`scaling.conformal.RowRisk`, what a checkpoint such as `statics-pl` computes per "
               "row): the same kind of score on what a served model knows, the novelty of its feature row, |ln δ1| "

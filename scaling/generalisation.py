@@ -335,6 +335,7 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
     warn_share: dict[str, dict[str, float]] = {}
     served: dict[str, tuple[list[np.ndarray], list[np.ndarray]]] = {}
     served_warn_share: dict[str, dict[str, float]] = {}
+    served_false_alarms: dict[str, dict[str, float]] = {}
     for m in split.test:
         say(f"judging {m} (source {source_of[m]})")
         for name in models:
@@ -362,7 +363,10 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
                 args = (p.g, p.log_pred, p.features[:, -1])
                 served.setdefault(name, ([], []))[0].append(row_risks[name].risk(*args))
                 served[name][1].append(p.err > MISS)
-                served_warn_share.setdefault(name, {})[m] = float(np.mean(row_risks[name].warns(*args)))
+                warned = row_risks[name].warns(*args)
+                served_warn_share.setdefault(name, {})[m] = float(np.mean(warned))
+                fine = p.err <= MISS
+                served_false_alarms.setdefault(name, {})[m] = float(np.mean(warned[fine])) if fine.any() else 0.0
         tgt = judged[m]
         f21 = tgt["F21"].to_numpy(float)
         pred = tgt["tilt_ratio"].to_numpy(float) * np.abs(tgt["Pf_tilt"].to_numpy(float))
@@ -375,7 +379,7 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
         "warned": {m: bool(machine_score[m] > extrap.threshold_) for m in split.test},
         "auroc_design_distance": {}, "auroc_ensemble_spread": {}, "auroc_error_score": {}, "warn_share": warn_share,
         "auroc_row_risk": {name: auroc(np.concatenate(r), np.concatenate(y)) for name, (r, y) in served.items()},
-        "row_risk_warn_share": served_warn_share,
+        "row_risk_warn_share": served_warn_share, "row_risk_false_alarms": served_false_alarms,
         "error_score": {name: {"coef": None if e.coef_ is None else e.coef_.tolist(),
                                "threshold": e.threshold_,
                                "features": list(ERROR_FEATURES)} for name, e in error_scores.items()}}

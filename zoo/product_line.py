@@ -146,7 +146,8 @@ def card_fields(model: FFNN, result: GeneralisationResult, reference: pd.Series,
                        "rows_over_10pct": r.miss_share,
                        "direct_pi_dynamic_mape_pct": float(base.loc[m, "dynamic_mape"]),
                        "direct_pi_static_mape_pct": float(base.loc[m, "static_mape"]),
-                       "risk_warned_share": result.extrapolation["row_risk_warn_share"][NAME][m]}
+                       "risk_warned_share": result.extrapolation["row_risk_warn_share"][NAME][m],
+                       "risk_false_alarms": result.extrapolation["row_risk_false_alarms"][NAME][m]}
                    for m, r in ours.iterrows()}
     drawn = ours.drop(index=list(cfg.layout.test_presets), errors="ignore")
     split = cfg.layout.split()
@@ -202,12 +203,15 @@ def card_fields(model: FFNN, result: GeneralisationResult, reference: pd.Series,
                         "interval_machines_85_95": int(drawn["coverage_served"].between(0.85, 0.95).sum()),
                         "risk_auroc": result.extrapolation["auroc_row_risk"][NAME],
                         "risk_warned_share_median": float(np.median(
-                            [result.extrapolation["row_risk_warn_share"][NAME][m] for m in drawn.index]))},
+                            [result.extrapolation["row_risk_warn_share"][NAME][m] for m in drawn.index])),
+                        "risk_false_alarms_median": float(np.median(
+                            [result.extrapolation["row_risk_false_alarms"][NAME][m] for m in drawn.index]))},
             "risk_note": "served per row (ScaledForce.risk): P(F21 more than 10 % off) from the novelty of the "
                          "row's features among the training pairs', |ln δ1| and whether the bucket is at rest, "
                          "fitted on the calibration machines; risk_auroc: how well it separates the held-out "
-                         "machines' rows more than 10 % off (0.5 = chance); it warns above the 95th percentile of "
-                         "the calibration machines' risks",
+                         "machines' rows more than 10 % off (0.5 = chance); it warns above a threshold that keeps "
+                         "the warnings to at most 5 % of the rows of 90 % of the calibration machines; false alarms: "
+                         "the share of rows at most 10 % off that it warns on",
             "note": "machines never trained on nor used for calibration (drawn with another seed, plus the mini and "
                     "wa475 presets); rows after start-up settling with F21 > 5 % of the machine's peak; dynamic = "
                     "dig cycles and moves, static = bucket held still; source = the nearest training machine by "
