@@ -1,13 +1,13 @@
 """KPIs of the scripted short loading cycle (WheelLoaderLoadTruck-v0) per scale and soil, against published figures.
 
-One episode per (scale, soil), seed 0, default truck (4 heaped buckets, done at 95 %): truck payload rate (t/h of
-simulated time), specific energy (hydraulic + drive work per kg delivered, J/kg), cycle time (time per pass, s
-and Froude times √(L/g)), passes, spill (kg and % of payload), payload error against the target. The published
-figures in :data:`PUBLISHED` are compared in Froude times: a real machine's cycle of T s at boom length L_r
-corresponds to T / √(L_r/g) Froude times.
+One episode per (scale, soil, seed), seeds 0, 1, 2 by default, default truck (4 heaped buckets, done at 95 %):
+truck payload rate (t/h of simulated time), specific energy (hydraulic + drive work per kg delivered, J/kg), cycle
+time (time per pass, s and Froude times √(L/g)), passes, spill (kg and % of payload), payload error against the
+target. The published figures in :data:`PUBLISHED` are compared in Froude times: a real machine's cycle of T s at
+boom length L_r corresponds to T / √(L_r/g) Froude times.
 
-Run: ``python benchmarks/loading_cycle.py [--scales mini,er12,wa475] [--soils gravel,clay_loam]`` (≤ 5 min on
-one core); writes ``benchmarks/results/loading_cycle.{md,csv,png}``.
+Run: ``python benchmarks/loading_cycle.py [--scales mini,er12,wa475] [--soils gravel,clay_loam] [--seeds 0,1,2]``
+(≈ 4 min on one core for the 18 default episodes); writes ``benchmarks/results/loading_cycle.{md,csv,png}``.
 """
 
 from __future__ import annotations
@@ -38,30 +38,40 @@ ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "benchmarks" / "results"
 #: Published figures (cycle time of a short loading cycle, passes per truck, bucket fill), with sources.
 PUBLISHED: list[tuple[str, str, str]] = [
-    ("≤ 30 s from bucket fill to bucket dump: 'optimum industry standard' cycle (Caterpillar application specialist)",
-     "ForConstructionPros, 'Optimizing Wheel Loader Cycle Times: When Even Seconds Count'",
-     "https://www.forconstructionpros.com/equipment/earthmoving/loaders/article/12129273/"
-     "optimizing-wheel-loader-cycle-times-when-even-seconds-count"),
-    ("30 s fill-dump-return for a 3 yd³ (2.3 m³) loader into 9 yd³ trucks; 2-3 passes per truck optimal; 85 % fill "
-     "needs 3.5 passes",
-     "Construction Equipment, 'Take-Charge Wheel Loader Operators Fill Trucks Faster' (2010, Caterpillar trainer)",
-     "https://constructionequipment.com/take-charge-wheel-loader-operators-fill-trucks-faster"),
-    ("Q = q·60·E/Cm; bucket fill factor 1.0-1.1 easy, 0.85-0.95 average (unscreened gravel, clay), 0.75-0.8 "
-     "difficult loading", "Komatsu Specifications & Application Handbook, 'Dozer shovels and wheel loaders'",
-     "https://ru.scribd.com/document/143810369/komat"),
-    ("basic cycle time plus material/pile/operation adjustments in minutes (e.g. +0.02 min truck-dumped pile)",
-     "Caterpillar Performance Handbook, ed. 40, p. 12-106 'Wheel Loader - Cycle Time'",
-     "https://www.scribd.com/doc/305991987/Wheel-Loader-Cycle-Time"),
+    (
+        "≤ 30 s from bucket fill to bucket dump: 'optimum industry standard' cycle "
+        "(Caterpillar application specialist)",
+        "ForConstructionPros, 'Optimizing Wheel Loader Cycle Times: When Even Seconds Count'",
+        "https://www.forconstructionpros.com/equipment/earthmoving/loaders/article/12129273/"
+        "optimizing-wheel-loader-cycle-times-when-even-seconds-count",
+    ),
+    (
+        "30 s fill-dump-return for a 3 yd³ (2.3 m³) loader into 9 yd³ trucks; 2-3 passes per truck optimal; 85 % fill "
+        "needs 3.5 passes",
+        "Construction Equipment, 'Take-Charge Wheel Loader Operators Fill Trucks Faster' (2010, Caterpillar trainer)",
+        "https://constructionequipment.com/take-charge-wheel-loader-operators-fill-trucks-faster",
+    ),
+    (
+        "Q = q·60·E/Cm; bucket fill factor 1.0-1.1 easy, 0.85-0.95 average (unscreened gravel, clay), 0.75-0.8 "
+        "difficult loading",
+        "Komatsu Specifications & Application Handbook, 'Dozer shovels and wheel loaders'",
+        "https://ru.scribd.com/document/143810369/komat",
+    ),
+    (
+        "basic cycle time plus material/pile/operation adjustments in minutes (e.g. +0.02 min truck-dumped pile)",
+        "Caterpillar Performance Handbook, ed. 40, p. 12-106 'Wheel Loader - Cycle Time'",
+        "https://www.scribd.com/doc/305991987/Wheel-Loader-Cycle-Time",
+    ),
 ]
 REAL_CYCLE_S = 30.0  # s: the published short cycle above
 REAL_BOOM_M = 2.6  # m: boom length assumed for a 2.3 m³ (3 yd³) loader (er12's 2.29 m boom carries ~1.2 m³)
 
 
-def run(scale: str, soil: str) -> dict[str, Any]:
-    """One scripted episode; its KPIs (SI units; ``cycle_tf`` in Froude times)."""
+def run(scale: str, soil: str, seed: int = 0) -> dict[str, Any]:
+    """One scripted episode reset with ``seed``; its KPIs (SI units; ``cycle_tf`` in Froude times)."""
     env = gym.make(ENV_ID, scale=scale, soil=soil)
     u = env.unwrapped
-    obs, info = env.reset(seed=0)
+    obs, info = env.reset(seed=seed)
     policy = LoadingCyclePolicy()
     t0 = time.perf_counter()
     while True:
@@ -72,19 +82,26 @@ def run(scale: str, soil: str) -> dict[str, Any]:
     payload, passes, t = info["truck_payload"], info["passes"], info["time"]
     work = info["hydraulic_work"] + info["drive_work"]
     return {
-        "scale": scale, "soil": soil, "boom_m": round(u.length, 3), "froude_s": round(tf, 4),
-        "success": bool(info["success"]), "sim_error": info["sim_error"] or "", "passes": passes,
-        "time_s": round(t, 2), "payload_kg": round(payload, 2), "target_kg": round(info["target_payload"], 2),
+        "scale": scale,
+        "soil": soil,
+        "seed": seed,
+        "boom_m": round(u.length, 3),
+        "froude_s": round(tf, 4),
+        "success": bool(info["success"]),
+        "sim_error": info["sim_error"] or "",
+        "passes": passes,
+        "time_s": round(t, 2),
+        "payload_kg": round(payload, 2),
+        "target_kg": round(info["target_payload"], 2),
         "t_per_h": round(payload / 1e3 / (t / 3600.0), 4),
         "J_per_kg": round(work / payload, 2) if payload > 0 else math.nan,
         "cycle_s": round(t / passes, 2) if passes else math.nan,
         "cycle_tf": round(t / passes / tf, 1) if passes else math.nan,
         "spill_kg": round(info["spilled_mass"], 3),
         "spill_pct": round(100.0 * info["spilled_mass"] / payload, 2) if payload > 0 else math.nan,
-        "payload_error": round(info["payload_error"], 4), "wall_s": round(time.perf_counter() - t0, 1),
+        "payload_error": round(info["payload_error"], 4),
+        "wall_s": round(time.perf_counter() - t0, 1),
     }
-
-
 
 
 def write(rows: list[dict[str, Any]]) -> None:
@@ -95,34 +112,48 @@ def write(rows: list[dict[str, Any]]) -> None:
         w.writerows(rows)
     real_tf = REAL_CYCLE_S / math.sqrt(REAL_BOOM_M / GRAVITY)
     now = dt.datetime.now().astimezone().strftime("%Y-%m-%d %H:%M %Z")
-    lines = [f"# Loading cycle KPIs ({now})", "",
-             f"Host: {host_line()}; {os.cpu_count()} cores; load {os.getloadavg()[0]:.1f}; python "
-             f"{platform.python_version()}; scaletwin {scaletwin_envs.__version__}; git {git_revision()}.", "",
-             "Scripted cycle (`LoadingCyclePolicy`: scripted TUNED dig, PD pitch hold while raising), "
-             "`WheelLoaderLoadTruck-v0` defaults (truck 4 heaped buckets, done at 95 %, 600 Froude times), seed 0. "
-             "Rates over simulated time, no operator or truck-exchange delays.", "",
-             "| scale | soil | L [m] | done | passes | time [s] | payload/target | t/h | J/kg | cycle [s] | "
-             "cycle [√(L/g)] | spill [kg] (%) | payload error |", "|" + "---|" * 13]
+    lines = [
+        f"# Loading cycle KPIs ({now})",
+        "",
+        f"Host: {host_line()}; {os.cpu_count()} cores; load {os.getloadavg()[0]:.1f}; python "
+        f"{platform.python_version()}; scaletwin {scaletwin_envs.__version__}; git {git_revision()}.",
+        "",
+        "Scripted cycle (`LoadingCyclePolicy`: scripted TUNED dig with a lift-crowd cut on a dug face, boom "
+        "raised out of the pile before reversing, PD pitch hold while raising), `WheelLoaderLoadTruck-v0` "
+        "defaults (truck 4 heaped buckets, done at 95 %, 600 Froude times), seeds "
+        f"{', '.join(sorted({str(r['seed']) for r in rows}))}. "
+        "Rates over simulated time, no operator or truck-exchange delays.",
+        "",
+        "| scale | soil | seed | L [m] | done | passes | time [s] | payload/target | t/h | J/kg | cycle [s] | "
+        "cycle [√(L/g)] | spill [kg] (%) | payload error |",
+        "|" + "---|" * 14,
+    ]
     for r in rows:
         done = "yes" if r["success"] else f"no{' ' + r['sim_error'] if r['sim_error'] else ''}"
-        lines.append(f"| {r['scale']} | {r['soil']} | {r['boom_m']} | {done} | {r['passes']} | {r['time_s']} | "
-                     f"{r['payload_kg']:.0f}/{r['target_kg']:.0f} | {r['t_per_h']} | {r['J_per_kg']} | "
-                     f"{r['cycle_s']} | {r['cycle_tf']} | {r['spill_kg']} ({r['spill_pct']}) | "
-                     f"{r['payload_error']:+.3f} |")
+        lines.append(
+            f"| {r['scale']} | {r['soil']} | {r['seed']} | {r['boom_m']} | {done} | {r['passes']} | {r['time_s']} | "
+            f"{r['payload_kg']:.0f}/{r['target_kg']:.0f} | {r['t_per_h']} | {r['J_per_kg']} | "
+            f"{r['cycle_s']} | {r['cycle_tf']} | {r['spill_kg']} ({r['spill_pct']}) | "
+            f"{r['payload_error']:+.3f} |"
+        )
     lines += ["", "## Published figures", "", "| figure | source |", "|---|---|"]
     lines += [f"| {fig} | [{src}]({url}) |" for fig, src, url in PUBLISHED]
     tfs = [r["cycle_tf"] for r in rows if r["success"]] or [math.nan]
-    lines += ["", f"Comparison: a {REAL_CYCLE_S:.0f} s cycle of a loader with a ~{REAL_BOOM_M} m boom (assumed for "
-              f"the 2.3 m³ class) is {real_tf:.0f} Froude times. Simulated cycles: "
-              f"{min(tfs):.0f}-{max(tfs):.0f} Froude times per pass in the episodes that filled their truck "
-              "(passes with a part-filled bucket included; the failed ones are in the table), "
-              f"i.e. {min(tfs) / real_tf:.1f}-{max(tfs) / real_tf:.1f} × the published short cycle. Passes per "
-              "4-bucket truck above the published 2-3 (trucks matched to 2-3 buckets) and the 4 a 4-bucket truck "
-              "needs at full fill: the scripted dig fills partly dug faces poorly (see the per-pass fill in the "
-              "episode), which is what a learned bucket-fill policy should improve.", ""]
+    lines += [
+        "",
+        f"Comparison: a {REAL_CYCLE_S:.0f} s cycle of a loader with a ~{REAL_BOOM_M} m boom (assumed for "
+        f"the 2.3 m³ class) is {real_tf:.0f} Froude times. Simulated cycles: "
+        f"{min(tfs):.0f}-{max(tfs):.0f} Froude times per pass in the episodes that filled their truck "
+        "(passes with a part-filled bucket included; the failed ones are in the table), "
+        f"i.e. {min(tfs) / real_tf:.1f}-{max(tfs) / real_tf:.1f} × the published short cycle. Passes per "
+        "4-bucket truck above the published 2-3 (trucks matched to 2-3 buckets) and the 4 a 4-bucket truck "
+        "needs at full fill: the scripted dig fills partly dug faces poorly (see the per-pass fill in the "
+        "episode), which is what a learned bucket-fill policy should improve.",
+        "",
+    ]
     (OUT / "loading_cycle.md").write_text("\n".join(lines))
-    fig, ax = plt.subplots(1, 2, figsize=(10, 4))
-    labels = [f"{r['scale']}\n{r['soil']}" for r in rows]
+    fig, ax = plt.subplots(1, 2, figsize=(max(10, 0.9 * len(rows)), 4.5))
+    labels = [f"{r['scale']}\n{r['soil']}\n{r['seed']}" for r in rows]
     ax[0].bar(labels, [r["cycle_tf"] for r in rows])
     ax[0].axhline(real_tf, color="k", ls="--", label=f"published {REAL_CYCLE_S:.0f} s at L={REAL_BOOM_M} m")
     ax[0].set_ylabel("cycle time per pass [√(L/g)]")
@@ -138,12 +169,14 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scales", default="mini,er12,wa475")
     parser.add_argument("--soils", default="gravel,clay_loam")
+    parser.add_argument("--seeds", default="0,1,2", help="reset seeds, one episode each (default: 0,1,2)")
     args = parser.parse_args()
     rows = []
     for scale in args.scales.split(","):
         for soil in args.soils.split(","):
-            rows.append(run(scale, soil))
-            print(rows[-1], flush=True)
+            for seed in args.seeds.split(","):
+                rows.append(run(scale, soil, int(seed)))
+                print(rows[-1], flush=True)
     write(rows)
 
 

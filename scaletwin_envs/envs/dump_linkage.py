@@ -73,8 +73,10 @@ def _required_poses(spec: LoaderSpec) -> list[tuple[float, float]]:
 def _boom_range(spec: LoaderSpec) -> tuple[float, float]:
     """Boom angles (rad) at the lift cylinder's closed and fully extended lengths."""
     lift = spec.lift
-    return (boom_angle_for_lift_length(spec.geometry, lift.closed_length),
-            boom_angle_for_lift_length(spec.geometry, lift.closed_length + lift.stroke))
+    return (
+        boom_angle_for_lift_length(spec.geometry, lift.closed_length),
+        boom_angle_for_lift_length(spec.geometry, lift.closed_length + lift.stroke),
+    )
 
 
 def bucket_stops(spec: LoaderSpec, booms: int = 7) -> tuple[float, float]:
@@ -124,14 +126,16 @@ def _tilt_lengths(spec: LoaderSpec, geometry: LinkageGeometry) -> np.ndarray:
             raise ValueError(f"link B does not close: {exc}") from exc
         ratio = abs(tilt_ratio(geometry, boom, pitch))
         if not FORCE_RATIO[0] < ratio < FORCE_RATIO[1]:
-            raise ValueError(f"near a dead centre at boom {boom:.2f} rad, pitch {pitch:.2f} rad (force ratio "
-                             f"{ratio:.2f})")
+            raise ValueError(
+                f"near a dead centre at boom {boom:.2f} rad, pitch {pitch:.2f} rad (force ratio {ratio:.2f})"
+            )
         by_boom.setdefault(boom, []).append(pose.tilt_length)
     stop_lo, stop_hi = bucket_stops(dataclasses.replace(spec, geometry=geometry))
     outside = [(b, p) for b, p in _required_poses(spec) if not stop_lo <= p - b <= stop_hi]
     if outside:
-        raise ValueError(f"bucket stops ({stop_lo:.2f}, {stop_hi:.2f}) rad exclude the required pose (boom, pitch) "
-                         f"= {outside[0]}")
+        raise ValueError(
+            f"bucket stops ({stop_lo:.2f}, {stop_hi:.2f}) rad exclude the required pose (boom, pitch) = {outside[0]}"
+        )
     for boom, lengths in by_boom.items():
         if not np.all(np.diff(lengths) > 0):  # extension must curl back, as on the original (policies rely on it)
             raise ValueError(f"tilt length not increasing with pitch at boom {boom:.2f} rad")
@@ -170,9 +174,11 @@ def dump_capable(spec: LoaderSpec, tries: int = SEARCH_TRIES) -> LoaderSpec:
         area = max(breakout_force(spec) / breakout_force(out), 1.0)  # keep the machine's breakout force
         if area > 1.0:
             k = math.sqrt(area)
-            tilt = dataclasses.replace(tilt, bore=tilt.bore * k, rod_diameter=tilt.rod_diameter * k,
-                                       pump_flow=tilt.pump_flow * area)  # same speeds: flow follows the area
+            tilt = dataclasses.replace(
+                tilt, bore=tilt.bore * k, rod_diameter=tilt.rod_diameter * k, pump_flow=tilt.pump_flow * area
+            )  # same speeds: flow follows the area
             out = dataclasses.replace(out, tilt=tilt)
         return out
-    raise ValueError(f"machine {spec.name!r} has no dump-capable tilt linkage within {tries} candidates "
-                     f"(last: {error})")
+    raise ValueError(
+        f"machine {spec.name!r} has no dump-capable tilt linkage within {tries} candidates (last: {error})"
+    )

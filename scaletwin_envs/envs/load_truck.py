@@ -79,13 +79,16 @@ ENV_ID = "WheelLoaderLoadTruck-v0"
 OBS_NAMES = (*DIG_OBS_NAMES, "leg", "edge_x_to_truck", "clearance", "truck_fill", "to_apex")
 OBS_INDEX = {n: i for i, n in enumerate(OBS_NAMES)}
 REWARD_TERMS = ("payload", "time", "energy", "spill", "overload")
-PHASES = ("approach", "penetrate", "curl", "lift", "reverse_loaded", "haul", "dump", "reverse_empty", "carry",
-          "idle")
+PHASES = ("approach", "penetrate", "curl", "lift", "reverse_loaded", "haul", "dump", "reverse_empty", "carry", "idle")
 DIG_TIME = 60.0  # Froude times: the dig env's default horizon, by which its ``time`` observation is normalised
 WALL = 0.03  # truck wall and floor thickness, boom lengths (visual and contact; 7 cm on the ER12)
 TRUCK_CELLS = 24  # bins of the truck's load profile along the body (for its centre of mass)
 SPILL_SPREAD = 0.3  # boom lengths: width over which spill from the edge lands on the pile (the dig env's value)
 LEG_REARM = 0.1  # boom lengths past the apex before another reversal can switch leg again (no chatter)
+# Height that makes a face, boom lengths: lower layers (spill and the floor left in front of the face by earlier
+# passes; up to ~0.12 L on the mini in gravel) are scraped up on the way in. At 2 % of L such a layer counted as the
+# face, and the dig, which penetrates a set distance past the face, curled at the real face half empty (2026-11-27).
+FACE_LEVEL = 0.15
 MOVING = 0.02  # × √(gL): travel speed below which the machine counts as stopped (the dig phases' threshold)
 # Carry-back: film kept by adhesion, fraction of heaped capacity: 1 % for cohesionless soil plus 0.3 % per kPa of
 # soil-metal adhesion (gravel 1 %, clay loam 5.5 %; estimate in the range of the 1-10 % carry-back reported for
@@ -155,11 +158,19 @@ class WheelLoaderLoadTruckEnv(WheelLoaderDigEnv):
         if not isinstance(dump_linkage, bool):
             raise ValueError(f"dump_linkage must be True or False, got {dump_linkage!r}")
         spec = make_loader(scale, law, distortion)
-        self.truck = {k: _number(k, v) for k, v in (("truck_distance", truck_distance), ("truck_height", truck_height),
-                                                      ("truck_width", truck_width), ("truck_depth", truck_depth))}
+        self.truck = {
+            k: _number(k, v)
+            for k, v in (
+                ("truck_distance", truck_distance),
+                ("truck_height", truck_height),
+                ("truck_width", truck_width),
+                ("truck_depth", truck_depth),
+            )
+        }
         if self.truck["truck_depth"] >= self.truck["truck_height"]:
-            raise ValueError(f"truck_depth ({truck_depth}) must be < truck_height ({truck_height}): the floor is "
-                             f"above the ground")
+            raise ValueError(
+                f"truck_depth ({truck_depth}) must be < truck_height ({truck_height}): the floor is above the ground"
+            )
         self.truck_payload = _number("truck_payload", truck_payload)
         self.done_fraction = _number("done_fraction", done_fraction)
         if self.done_fraction > 1.0:
@@ -171,18 +182,45 @@ class WheelLoaderLoadTruckEnv(WheelLoaderDigEnv):
         self.carry_back = _number("carry_back", carry_back, strict=False)
         if self.carry_back >= 1.0:
             raise ValueError(f"carry_back must be in [0, 1), got {carry_back!r}")
-        self.load_weights = {"payload": payload_weight, "time": time_cost_weight, "energy": energy_cost_weight,
-                             "spill": spill_cost_weight, "overload": overload_cost_weight}
+        self.load_weights = {
+            "payload": payload_weight,
+            "time": time_cost_weight,
+            "energy": energy_cost_weight,
+            "spill": spill_cost_weight,
+            "overload": overload_cost_weight,
+        }
         for k, v in self.load_weights.items():
             _number(f"{k} weight", v, strict=False)
         self.cycle_time_limit = _number("max_episode_time", max_episode_time)
+        # Oil column of the tilt circuit (the tilt slide's armature, builder.cylinder_armature): the variant's
+        # cylinder has ~4x the piston area, so ~4x the oil moving with the piston. Scaled with the area it keeps the
+        # servo stiffness (kv ∝ relief force) to armature ratio of the machine's own cylinder; left at the original
+        # value, a 4x stiffer servo on the same armature, once at relief, locks into a relay oscillation between its
+        # force limits every physics step (MuJoCo drops the servo's implicit damping while it is clamped), in which
+        # the tilt command has no effect: on the mini the loaded bucket then neither dumped nor held its pitch
+        # (2026-11-27).
+        self._tilt_oil_ratio = 1.0
         if dump_linkage:
-            spec = dump_capable(spec)
+            variant = dump_capable(spec)
+            self._tilt_oil_ratio = variant.tilt.bore_area / spec.tilt.bore_area
+            spec = variant
         self._truck_geoms: list[str] = []
-        super().__init__(spec, law, None, soil=soil_spec, pile_distance=pile_distance, pile_height=pile_height,
-                         max_episode_time=DIG_TIME, reset_noise_scale=reset_noise_scale, frame_skip=frame_skip,
-                         external_force_substeps=external_force_substeps,
-                         two_route_check=two_route_check, render_mode=render_mode, width=width, height=height)
+        super().__init__(
+            spec,
+            law,
+            None,
+            soil=soil_spec,
+            pile_distance=pile_distance,
+            pile_height=pile_height,
+            max_episode_time=DIG_TIME,
+            reset_noise_scale=reset_noise_scale,
+            frame_skip=frame_skip,
+            external_force_substeps=external_force_substeps,
+            two_route_check=two_route_check,
+            render_mode=render_mode,
+            width=width,
+            height=height,
+        )
         self.horizon = math.ceil(self.cycle_time_limit * self.loader.froude_time / self.dt - 1e-9)
         self.observation_space = spaces.Box(-OBS_LIMIT, OBS_LIMIT, shape=(len(OBS_NAMES),), dtype=np.float32)
         self._truck_ids = np.array([self.model.geom(n).id for n in self._truck_geoms[:3]])
@@ -206,18 +244,35 @@ class WheelLoaderLoadTruckEnv(WheelLoaderDigEnv):
         hinge.limited = mujoco.mjtLimited.mjLIMITED_TRUE
         stops = bucket_stops(self.loader)  # rad; the spec reads joint ranges in degrees unless told otherwise
         hinge.range = [math.degrees(v) for v in stops] if s.compiler.degree else list(stops)
+        s.joint("tilt_cylinder").armature *= self._tilt_oil_ratio  # the variant's oil column (see __init__)
         near, inner, far = self._truck_x()
         top, floor = self.truck["truck_height"] * L, (self.truck["truck_height"] - self.truck["truck_depth"]) * L
         half_w = 0.5 * WALL * L
-        boxes = (("truck_near_wall", near + half_w, 0.5 * (floor + top), half_w, 0.5 * (top - floor)),
-                 ("truck_far_wall", far + half_w, 0.5 * (floor + top), half_w, 0.5 * (top - floor)),
-                 ("truck_floor", 0.5 * (inner + far), floor - half_w, 0.5 * (far - inner), half_w),
-                 ("truck_chassis", 0.5 * (near + far + WALL * L), 0.5 * (floor - WALL * L),
-                  0.5 * (far - near + WALL * L), 0.5 * (floor - WALL * L)))
+        boxes = (
+            ("truck_near_wall", near + half_w, 0.5 * (floor + top), half_w, 0.5 * (top - floor)),
+            ("truck_far_wall", far + half_w, 0.5 * (floor + top), half_w, 0.5 * (top - floor)),
+            ("truck_floor", 0.5 * (inner + far), floor - half_w, 0.5 * (far - inner), half_w),
+            (
+                "truck_chassis",
+                0.5 * (near + far + WALL * L),
+                0.5 * (floor - WALL * L),
+                0.5 * (far - near + WALL * L),
+                0.5 * (floor - WALL * L),
+            ),
+        )
         for name, x, z, hx, hz in boxes:
-            s.worldbody.add_geom(name=name, type=mujoco.mjtGeom.mjGEOM_BOX, pos=[x, 0.0, z],
-                                 size=[hx, 0.6 * L, hz], rgba=[0.2, 0.35, 0.6, 1], condim=1, contype=1,
-                                 conaffinity=1, solref=[opt.constraint_timeconst, 1.0], solimp=opt.solimp)
+            s.worldbody.add_geom(
+                name=name,
+                type=mujoco.mjtGeom.mjGEOM_BOX,
+                pos=[x, 0.0, z],
+                size=[hx, 0.6 * L, hz],
+                rgba=[0.2, 0.35, 0.6, 1],
+                condim=1,
+                contype=1,
+                conaffinity=1,
+                solref=[opt.constraint_timeconst, 1.0],
+                solimp=opt.solimp,
+            )
             self._truck_geoms.append(name)
         model = s.compile()  # compiled colliding (MuJoCo refuses to enable it later); _set_leg switches it off
         chassis = model.geom("truck_chassis").id
@@ -311,16 +366,21 @@ class WheelLoaderLoadTruckEnv(WheelLoaderDigEnv):
 
     # -- step -----------------------------------------------------------------------------------------------
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        self._check_running()  # stepping on after a sim_error raises EpisodeFinishedError, as in the dig env
         a = self._validate_action(action)
         rho, target = self.soil.density, self.target_mass
-        before = {"truck": self.truck_volume * rho, "spill": self.ground_spill * rho,
-                  "over": max(self.truck_volume * rho - target, 0.0)}
+        before = {
+            "truck": self.truck_volume * rho,
+            "spill": self.ground_spill * rho,
+            "over": max(self.truck_volume * rho - target, 0.0),
+        }
         error = self._simulate(self._command_to_ctrl(a))
         self._t += self.dt
         if error is None:
             sig = self._read_signals(self.soil_force())
             error = None if self._finite(sig) else "non-finite signals"
         if error is not None:
+            self.sim_error = error
             info = self._info(dict.fromkeys(REWARD_TERMS, 0.0), dict(self._good_signals), "error", error)
             return self._last_obs.copy(), 0.0, False, True, info
         self.signals = sig
@@ -337,8 +397,9 @@ class WheelLoaderLoadTruckEnv(WheelLoaderDigEnv):
         sig = self._step_signals()
         self.signals = self._good_signals = sig
         _, inner, _ = self._truck_x()
-        out_of_body = self.leg == 0 or float(self.data.site_xpos[self._sites["bucket_edge"]][0]) < inner - WALL * \
-            self.length
+        out_of_body = (
+            self.leg == 0 or float(self.data.site_xpos[self._sites["bucket_edge"]][0]) < inner - WALL * self.length
+        )
         done = bool(self.truck_volume * rho >= self.done_fraction * target and out_of_body)
         truncated = self._t >= self.cycle_time_limit * self.loader.froude_time - 1e-9
         info = self._info(terms, sig, self.load_phase(), None)
@@ -387,8 +448,13 @@ class WheelLoaderLoadTruckEnv(WheelLoaderDigEnv):
     def mass_balance(self) -> dict[str, float]:
         """Where the material is (kg): pile strip, bucket, truck, spill on the ground, and the total at reset."""
         rho = self.soil.density
-        return {"pile": self.pile.volume * rho, "bucket": self.dig.load_volume * rho, "truck": self.truck_volume * rho,
-                "spill": self.ground_spill * rho, "total": self.total_volume * rho}
+        return {
+            "pile": self.pile.volume * rho,
+            "bucket": self.dig.load_volume * rho,
+            "truck": self.truck_volume * rho,
+            "spill": self.ground_spill * rho,
+            "total": self.total_volume * rho,
+        }
 
     def load_phase(self) -> str:
         """Phase label from the machine's state (see module docstring)."""
@@ -412,28 +478,42 @@ class WheelLoaderLoadTruckEnv(WheelLoaderDigEnv):
             return "carry"
         return "idle"
 
-    def _info(self, terms: Mapping[str, float], sig: Mapping[str, float], phase: str, error: str | None
-              ) -> dict[str, Any]:
+    def _info(
+        self, terms: Mapping[str, float], sig: Mapping[str, float], phase: str, error: str | None
+    ) -> dict[str, Any]:
         rho, target = self.soil.density, self.target_mass
         truck = self.truck_volume * rho
         com_x, com_z = self.truck_com()
         hyd, drv = self._work, self._drive_work
         return {
-            "signals": dict(sig), "phase": phase, "reward_terms": dict(terms), "leg": self.leg,
-            "passes": self.passes, "truck_payload": truck, "truck_com_x": com_x, "truck_com_z": com_z,
-            "target_payload": target, "payload_error": (truck - target) / target,
-            "fill_factor": float(self.dig.fill()), "loaded_mass": self.dig.load_volume * rho,
-            "spilled_mass": self.ground_spill * rho, "returned_mass": self.returned * rho,
-            "hydraulic_work": hyd, "drive_work": drv, "time": self._t, "mass_balance": self.mass_balance(),
-            "success": bool(truck >= self.done_fraction * target and error is None), "sim_error": error,
+            "signals": dict(sig),
+            "phase": phase,
+            "reward_terms": dict(terms),
+            "leg": self.leg,
+            "passes": self.passes,
+            "truck_payload": truck,
+            "truck_com_x": com_x,
+            "truck_com_z": com_z,
+            "target_payload": target,
+            "payload_error": (truck - target) / target,
+            "fill_factor": float(self.dig.fill()),
+            "loaded_mass": self.dig.load_volume * rho,
+            "spilled_mass": self.ground_spill * rho,
+            "returned_mass": self.returned * rho,
+            "hydraulic_work": hyd,
+            "drive_work": drv,
+            "time": self._t,
+            "mass_balance": self.mass_balance(),
+            "success": bool(truck >= self.done_fraction * target and error is None),
+            "sim_error": error,
             "action_clipped": bool(getattr(self, "action_clipped", False)),
         }
 
     # -- observation ----------------------------------------------------------------------------------------
     def _pile_face(self) -> float:
-        """x of the pile's current face (m): the first column above 2 % of L, extrapolated down the repose slope
-        to the ground (the toe itself on an undug pile)."""
-        level = 0.02 * self.length
+        """x of the pile's current face (m): the first column above :data:`FACE_LEVEL` × L, extrapolated down the
+        repose slope to the ground (the toe itself on an undug pile)."""
+        level = FACE_LEVEL * self.length
         above = np.nonzero(self.pile.h > level)[0]
         if above.size == 0:
             return float(self.pile.x[-1])
@@ -459,8 +539,12 @@ class WheelLoaderLoadTruckEnv(WheelLoaderDigEnv):
             dig[DIG_INDEX["surface_ahead_1"]] = dig[DIG_INDEX["surface_ahead_2"]] = 0.0
         _, inner, _ = self._truck_x()
         lowest = min(edge[1], *(float(self.data.site_xpos[s][2]) for s in self._heel_top))
-        extra = (float(self.leg), (edge[0] - inner) / L, (lowest - self.truck["truck_height"] * L) / L,
-                 self.truck_volume * self.soil.density / self.target_mass, (float(self.data.qpos[0]) - self._apex) / L
-                 if hasattr(self, "_apex") else self.turn_back)
+        extra = (
+            float(self.leg),
+            (edge[0] - inner) / L,
+            (lowest - self.truck["truck_height"] * L) / L,
+            self.truck_volume * self.soil.density / self.target_mass,
+            (float(self.data.qpos[0]) - self._apex) / L if hasattr(self, "_apex") else self.turn_back,
+        )
         obs = np.nan_to_num(np.concatenate([dig, extra]), nan=0.0, posinf=OBS_LIMIT, neginf=-OBS_LIMIT)
         return np.clip(obs, -OBS_LIMIT, OBS_LIMIT).astype(np.float32)

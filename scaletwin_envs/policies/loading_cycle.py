@@ -1,12 +1,14 @@
 """A scripted short loading cycle for ``WheelLoaderLoadTruck-v0``, built on any bucket-fill (dig) policy.
 
 The dig is delegated to a dig policy acting on the dig view of the observation (entries 0–18, the dig env's
-:data:`~scaletwin_envs.envs.wheel_loader_dig.OBS_NAMES`): the scripted :class:`ScriptedDigPolicy` (default, with
-the :data:`TUNED` parameters) or a learned one (anything with ``act`` or Stable-Baselines3's ``predict``, e.g.
-``zoo.load("bucketfill-ppo")``). The rest is a state machine on the dimensionless observation, so the same
-thresholds serve every size: reverse with the bucket racked until the leg switches, haul forward raising the boom,
-stop with the edge over the body once it clears the truck's side, tip until the bucket is empty (or the truck holds
-its target: partial last dump), back out, lower, and hand back to the dig policy.
+:data:`~scaletwin_envs.envs.wheel_loader_dig.OBS_NAMES`): the scripted :class:`ScriptedDigPolicy` (with the
+:data:`TUNED` parameters) or a learned one (anything with ``act`` or Stable-Baselines3's ``predict``, e.g.
+``zoo.load("bucketfill-ppo")``); the default, :class:`FaceDigPolicy`, is the scripted dig with a lift-crowd cut on
+the face left by earlier passes. The rest is a state machine on the dimensionless observation, so the same
+thresholds serve every size: lift the loaded bucket clear of the pile while backing off slowly, reverse with the
+bucket racked (the boom rising while the bucket is below carry height) until the leg switches, haul forward raising
+the boom, stop with the edge over the body once it clears the truck's side, tip until the bucket is empty (or the
+truck holds its target: partial last dump), back out, lower, and hand back to the dig policy.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from scaletwin_envs.envs.load_truck import OBS_INDEX
+from scaletwin_envs.envs.wheel_loader_dig import OBS_INDEX as DIG_OBS_INDEX
 from scaletwin_envs.envs.wheel_loader_dig import OBS_NAMES as DIG_OBS_NAMES
 from scaletwin_envs.policies.base import DigPolicy
 from scaletwin_envs.policies.scripted import TUNED, ScriptedDigPolicy, Stage
@@ -26,30 +29,81 @@ N_DIG = len(DIG_OBS_NAMES)
 
 
 class CycleStage(IntEnum):
+    """Stages of the cycle, in their order within a pass."""
+
     DIG = 0
     REVERSE = 1
     HAUL = 2
     DUMP = 3
     BACK_OUT = 4
+    LIFT_OUT = 5  # between DIG and REVERSE (numbered last so the earlier values keep their meaning)
 
 
 # The dump linkage turns the bucket 4-6x faster per unit of tilt stroke than the presets' (velocity ratio
-# dL/dθ ≈ 0.025-0.035 L/rad against 0.15): a full tilt command turns it by ~0.25 rad in one control step, so the
-# pitch loop's gains are low (per-step loop gain ≈ 0.3 at PITCH_KP, measured on er12, 2026-11-27).
-PITCH_KP = 1.2  # tilt command per rad of pitch error
-PITCH_KD = 0.6  # tilt command per rad of pitch change in one step: damps the swing of a loaded bucket
-LIFT_GATE = 0.25  # rad: pitch error at which raising stops, so the hold keeps up with the racking of the boom
+# dL/dθ ≈ 0.025-0.035 L/rad against 0.15), and ~3x faster again near its rack-back stop (0.012 L/rad), where a dig
+# leaves it: a full tilt command turns it by up to ~0.6 rad in one control step there. At 1.2/rad with a D term on
+# the one-step pitch change the loop swung a loaded mini bucket between -0.1 and 1.0 rad every 4-5 steps and threw a
+# quarter of its load (2026-11-27); at 0.4/rad without D (per-step loop gain ≤ 0.25) the bucket settles on target.
+PITCH_KP = 0.4  # tilt command per rad of pitch error
+PITCH_KD = 0.0  # tilt command per rad of pitch change in one step (a D term on a one-step-old rate destabilised it)
+# rad: pitch error at which raising stops, so the hold keeps up with the racking of the boom (0.5: with the slower
+# hold, 0.25 held the boom still for most of the haul, 2026-11-27)
+LIFT_GATE = 0.5
 
 
-def _hold_pitch(pitch: float, rate: float, target: float) -> float:
+def _hold_pitch(pitch: float, rate: float, target: float, kp: float = PITCH_KP, kd: float = PITCH_KD) -> float:
     """Tilt command holding the bucket pitch at ``target`` (rad): PD on the pitch (rad) and its change over the last
-    step (``rate``, rad per step; steps are a fixed fraction of the Froude time at every scale)."""
-    return float(np.clip(PITCH_KP * (target - pitch) - PITCH_KD * rate, -1.0, 1.0))
+    step (``rate``, rad per step; steps are a fixed fraction of the Froude time at every scale); ``kp`` per rad,
+    ``kd`` per rad per step."""
+    return float(np.clip(kp * (target - pitch) - kd * rate, -1.0, 1.0))
 
 
 def _gate(pitch: float, target: float) -> float:
     """1 with the pitch on target, falling to 0 at :data:`LIFT_GATE` rad off: scales the lift command."""
     return float(np.clip(1.0 - abs(pitch - target) / LIFT_GATE, 0.0, 1.0))
+
+
+@dataclass
+class FaceDigPolicy(ScriptedDigPolicy):
+    """The scripted dig, cutting a slice off a dug face: while penetrating, the boom rises as soon as the cutting
+    edge is deeper than ``cut_depth`` below the surface above it, so the cut stays that deep.
+
+    After the first pass the pile ends in a face about as tall as the pile (0.5 L of 0.65 on the mini in gravel);
+    driven straight into it at ground level the bucket stalls within a few hundredths of L with 0.1-0.2 of a bucket
+    (2026-11-27), where a lift-crowd cut up the face fills it. On the undug pile's slope the cut is shallower than
+    ``cut_depth`` for most of the penetration, so the first pass is the plain scripted dig.
+
+    Attributes (besides :class:`ScriptedDigPolicy`'s):
+        cut_depth: edge depth below the pile surface above it kept while penetrating, boom lengths.
+        cut_gain: lift command per boom length of depth beyond ``cut_depth``.
+        face_steps: control steps of a dig for which a slow penetration with the cut deeper than ``cut_depth``
+            does not count as a stall (40 ≈ 8 Froude times, several times what the boom needs to lift a cut).
+    """
+
+    cut_depth: float = 0.25
+    cut_gain: float = 5.0
+    face_steps: int = 40
+
+    def reset(self) -> None:
+        """Start a new dig."""
+        super().reset()
+        self._face = 0
+
+    def _advance(self, o: dict[str, float]) -> None:
+        # slowed by the face while the boom brings the cut up to cut_depth is not a stall (the scripted dig curls
+        # after 3 slow steps), for at most face_steps steps (a boom that cannot lift the cut then curls)
+        if self.stage is Stage.PENETRATE and o["edge_depth"] > self.cut_depth and self._face < self.face_steps:
+            self._face += 1
+            self._stall = 0
+        super()._advance(o)
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        """The scripted dig's action, the lift replaced while penetrating (see class docstring)."""
+        action = super().act(obs)
+        if self.stage is Stage.PENETRATE:
+            depth = float(obs[DIG_OBS_INDEX["edge_depth"]])
+            action[0] = float(np.clip(self.cut_gain * (depth - self.cut_depth), 0.0, 1.0))
+        return action
 
 
 @dataclass
@@ -64,15 +118,24 @@ class LoadingCyclePolicy(DigPolicy):
         clearance: margin above the truck's side before moving over it, boom lengths.
         dump_reach: how far past the inside of the near wall the edge goes before tipping, boom lengths.
         haul_drive: drive command on the truck leg.
+        lift_out_drive: drive command while the boom lifts the loaded bucket out of the pile (the scripted dig's
+            TUNED ``lift_drive``: backing off slowly keeps the bucket from dragging through the face).
+        pile_clearance: edge height above the pile surface before reversing at full speed, boom lengths (the
+            scripted dig's ``clearance``).
         empty_fill: fill below which the bucket counts as emptied (carry-back stays in it).
+        pitch_kp, pitch_kd: gains of the pitch hold (:data:`PITCH_KP`, :data:`PITCH_KD`).
     """
 
-    dig: Any = field(default_factory=lambda: ScriptedDigPolicy(**TUNED))
+    dig: Any = field(default_factory=lambda: FaceDigPolicy(**TUNED))
     carry_pitch: float = 0.45
     carry_height: float = 0.25
     clearance: float = 0.06
     dump_reach: float = 0.3
     haul_drive: float = 0.8
+    lift_out_drive: float = -0.3
+    pitch_kp: float = PITCH_KP
+    pitch_kd: float = PITCH_KD
+    pile_clearance: float = 0.08
     empty_fill: float = 0.08
 
     def __post_init__(self) -> None:
@@ -97,6 +160,7 @@ class LoadingCyclePolicy(DigPolicy):
         return o["fill"] > 0.3 and o["edge_depth"] < -0.05 and o["bucket_pitch"] > 0.3  # the dig env's "clear"
 
     def act(self, obs: np.ndarray) -> np.ndarray:
+        """Action ``[lift, tilt, drive]`` in [-1, 1] for the load-truck observation ``obs`` (:data:`OBS_INDEX`)."""
         o = {k: float(obs[i]) for k, i in OBS_INDEX.items()}
         self._advance(o)
         pitch = o["bucket_pitch"]
@@ -104,10 +168,16 @@ class LoadingCyclePolicy(DigPolicy):
         self._pitch = pitch
         if self.stage is CycleStage.DIG:
             return self._dig_action(obs)
-        hold = _hold_pitch(pitch, rate, self.carry_pitch)
+        hold = _hold_pitch(pitch, rate, self.carry_pitch, self.pitch_kp, self.pitch_kd)
         gate = _gate(pitch, self.carry_pitch)
+        if self.stage is CycleStage.LIFT_OUT:
+            # boom up out of the pile at full speed, backing off slowly: a bucket dragged back through the pile
+            # or along the ground bounces and throws its heap (mini, 2026-11-27)
+            return np.array([1.0, hold, self.lift_out_drive], dtype=np.float32)
         if self.stage is CycleStage.REVERSE:
-            lift = 0.6 * gate if o["edge_height"] < self.carry_height else 0.0
+            # below carry height the boom rises whatever the pitch (the bucket must not touch the ground);
+            # above it, it waits for the hold
+            lift = 1.0 if o["edge_height"] < self.carry_height else 0.0
             return np.array([lift, hold, -1.0], dtype=np.float32)
         if self.stage is CycleStage.HAUL:
             clear = o["clearance"] > self.clearance
@@ -126,6 +196,8 @@ class LoadingCyclePolicy(DigPolicy):
 
     def _advance(self, o: dict[str, float]) -> None:
         if self.stage is CycleStage.DIG and o["leg"] == 0.0 and self._dig_done(o):
+            self.stage = CycleStage.LIFT_OUT
+        elif self.stage is CycleStage.LIFT_OUT and (o["edge_depth"] < -self.pile_clearance or o["leg"] == 1.0):
             self.stage = CycleStage.REVERSE
         elif self.stage is CycleStage.REVERSE and o["leg"] == 1.0:
             self.stage = CycleStage.HAUL

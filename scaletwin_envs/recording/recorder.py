@@ -22,7 +22,7 @@ import pandas as pd
 
 import scaletwin_envs
 from scaletwin_envs.recording.recording import Provenance, Recording
-from scaletwin_envs.recording.schema import COMMAND_COLUMNS, EPISODE_NUMERIC, column_units, joint_units
+from scaletwin_envs.recording.schema import COMMAND_COLUMNS, EPISODE_NUMERIC, TRUCK_UNITS, column_units, joint_units
 from scaletwin_envs.signal_units import SIGNAL_UNITS
 
 StepCallback = Callable[[int, np.ndarray, dict[str, Any]], None]
@@ -56,10 +56,12 @@ class EpisodeRecorder:
         self._phases: list[str] = []
         self._model_sha256: str | None = None
         self._last_info: Mapping[str, Any] = {}
+        self._truck: tuple[str, ...] = ()  # TRUCK_UNITS columns this env reports (set at the reset)
 
     def __call__(self, step: int, action: np.ndarray, info: dict[str, Any]) -> None:
         if step == 0:
             self._model_sha256 = model_fingerprint(self.unwrapped.model)
+            self._truck = tuple(k for k in TRUCK_UNITS if k in info)
             return
         sig = info.get("signals", {})
         if not self._rows:
@@ -69,7 +71,7 @@ class EpisodeRecorder:
         reward = sum(info["reward_terms"].values()) if info.get("reward_terms") else _NAN
         row = [float(step), t, *map(float, action), *(sig.get(k, _NAN) for k in self._signals),
                info.get("fill_factor", _NAN), info.get("spilled_mass", _NAN), info.get("hydraulic_work", _NAN),
-               float(reward)]
+               float(reward), *(float(info.get(k, _NAN)) for k in self._truck)]
         self._rows.append(row)
         self._states.append(np.column_stack((data.qpos[self._q], data.qvel[self._qd])).ravel())
         self._phases.append(str(info.get("phase", "")))
@@ -77,8 +79,8 @@ class EpisodeRecorder:
 
     def recording(self) -> Recording:
         """The recording of the steps seen so far."""
-        units = column_units(self.joints)
-        numeric = ("step", "time", *COMMAND_COLUMNS, *self._signals, *EPISODE_NUMERIC)
+        units = {**column_units(self.joints), **{k: TRUCK_UNITS[k] for k in self._truck}}
+        numeric = ("step", "time", *COMMAND_COLUMNS, *self._signals, *EPISODE_NUMERIC, *self._truck)
         table = np.asarray(self._rows, dtype=np.float64).reshape(len(self._rows), len(numeric))
         states = np.asarray(self._states, dtype=np.float64).reshape(len(self._states), len(self.joints))
         cols: dict[str, Any] = dict(zip(numeric, table.T, strict=True))

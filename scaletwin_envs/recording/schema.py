@@ -34,6 +34,12 @@ EPISODE_NUMERIC = ("fill_factor", "spilled_mass", "hydraulic_work", "reward")
 EPISODE_UNITS: dict[str, str] = {
     "fill_factor": "1", "spilled_mass": "kg", "hydraulic_work": "J", "reward": "1", "phase": NON_QUANTITY,
 }
+#: Columns of the loading-cycle task (``WheelLoaderLoadTruck-v0``), after :data:`EPISODE_UNITS`, in recordings of
+#: envs whose reset ``info`` has these keys (recordings of other envs have none of them).
+TRUCK_UNITS: dict[str, str] = {
+    "truck_payload": "kg", "target_payload": "kg", "truck_com_x": "m", "truck_com_z": "m", "passes": "1",
+    "leg": "1", "returned_mass": "kg", "drive_work": "J",
+}
 #: Columns that are not float64.
 DTYPES: dict[str, str] = {"step": "int64", "phase": "str"}
 

@@ -1,7 +1,9 @@
 """WheelLoaderLoadTruck-v0: mass conservation, where dumped material lands, carry statics, bucket stops, the scripted
-loading cycle, checkers, determinism, bad input."""
+loading cycle, checkers, determinism, bad input, sim errors, recordings."""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -9,13 +11,17 @@ import pytest
 from gymnasium.utils.env_checker import check_env as gym_check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
-import scaletwin_envs  # noqa: F401  (registers the ids)
+import scaletwin_envs  # registers the ids
 from scaletwin_envs.envs.dump_linkage import bucket_stops
-from scaletwin_envs.envs.load_truck import ENV_ID, OBS_NAMES
+from scaletwin_envs.envs.load_truck import ENV_ID, OBS_NAMES, PHASES
+from scaletwin_envs.envs.loader_base import EpisodeFinishedError
 from scaletwin_envs.physics.bucket import load_centroid
 from scaletwin_envs.physics.kinematics import solve_pose
 from scaletwin_envs.physics.statics import solve_static
 from scaletwin_envs.policies.loading_cycle import LoadingCyclePolicy
+from scaletwin_envs.recording.recorder import record_episode
+from scaletwin_envs.recording.recording import read_recording
+from scaletwin_envs.recording.schema import TRUCK_UNITS
 from scaletwin_envs.runtime import qpos_for_pose
 
 
@@ -57,8 +63,9 @@ def _loaded_over(env: gym.Env, edge_offset: float) -> dict:
     pose = solve_pose(u.loader.geometry, 0.9, 0.6 - 0.9)
     _, inner, _ = u._truck_x()
     edge_x = float(pose.points["bucket_edge"][0])
-    u.set_state(qpos_for_pose(u.model, u.loader, pose, drive=inner + edge_offset * u.length - edge_x),
-                np.zeros(u.model.nv))
+    u.set_state(
+        qpos_for_pose(u.model, u.loader, pose, drive=inner + edge_offset * u.length - edge_x), np.zeros(u.model.nv)
+    )
     u.total_volume = u.pile.volume + u.dig.load_volume
     u._payload_volume = -1.0
     u._update_payload()
@@ -98,10 +105,17 @@ def test_same_seed_same_trajectory() -> None:
 
 @pytest.mark.parametrize(
     ("kwargs", "match"),
-    [({"scale": 0}, "scale"), ({"soil": "mud"}, "soil"), ({"truck_height": -1}, "truck_height"),
-     ({"truck_depth": 2.0}, "truck_depth"), ({"truck_payload": float("nan")}, "truck_payload"),
-     ({"done_fraction": 1.5}, "done_fraction"), ({"carry_back": 1.0}, "carry_back"),
-     ({"dump_linkage": "yes"}, "dump_linkage"), ({"turn_back": 0}, "turn_back")],
+    [
+        ({"scale": 0}, "scale"),
+        ({"soil": "mud"}, "soil"),
+        ({"truck_height": -1}, "truck_height"),
+        ({"truck_depth": 2.0}, "truck_depth"),
+        ({"truck_payload": float("nan")}, "truck_payload"),
+        ({"done_fraction": 1.5}, "done_fraction"),
+        ({"carry_back": 1.0}, "carry_back"),
+        ({"dump_linkage": "yes"}, "dump_linkage"),
+        ({"turn_back": 0}, "turn_back"),
+    ],
 )
 def test_bad_kwargs_raise_value_error(kwargs: dict, match: str) -> None:
     with pytest.raises(ValueError, match=match):
@@ -186,3 +200,46 @@ def test_scripted_loading_cycle_fills_a_truck_over_several_passes() -> None:
     assert info["spilled_mass"] < 0.05 * info["target_payload"]
     assert worst < 1e-6
     assert info["time"] / gym.make(ENV_ID).unwrapped.loader.froude_time < 600.0
+
+
+def test_scripted_cycle_delivers_payload_at_the_mini() -> None:
+    """mini in gravel, a one-bucket truck (done at 80 %): the scripted cycle digs, carries and dumps a bucket into
+    the truck in its first pass (the mini's tilt circuit once locked up at relief and nothing was delivered)."""
+    info, worst, _ = _cycle("mini", "gravel", truck_payload=1.0, done_fraction=0.8)
+    assert info["success"] and info["sim_error"] is None and info["passes"] == 1
+    assert info["truck_payload"] >= 0.8 * info["target_payload"]
+    assert info["spilled_mass"] < 0.05 * info["target_payload"]
+    assert worst < 1e-6
+
+
+def test_stepping_after_a_sim_error_raises() -> None:
+    """As in the dig env: the sim_error step truncates with the full info, and the next step without reset raises
+    EpisodeFinishedError; reset clears it."""
+    env = gym.make(ENV_ID, scale="mini")
+    env.reset(seed=0)
+    u = env.unwrapped
+    env.step(np.array([0.3, 0.2, 1.0], dtype=np.float32))
+    u.model.opt.gravity[2] = np.nan  # a broken model: the physics cannot be advanced
+    _, reward, terminated, truncated, info = env.step(np.array([1.0, 1.0, 1.0], dtype=np.float32))
+    assert truncated and not terminated and reward == 0.0
+    assert isinstance(info["sim_error"], str) and info["phase"] == "error" and "truck_payload" in info
+    with pytest.raises(EpisodeFinishedError, match="reset"):
+        env.step(np.zeros(3, dtype=np.float32))
+    u.model.opt.gravity[2] = -9.81
+    env.reset(seed=0)
+    _, _, _, _, info = env.step(np.zeros(3, dtype=np.float32))
+    assert info["sim_error"] is None
+
+
+def test_a_recorded_episode_keeps_the_truck_columns(tmp_path: Path) -> None:
+    """A short loading-cycle episode recorded to Parquet and read back: the truck's payload (kg) and the passes are
+    columns, the load phases are kept; a dig-env recording has no truck columns."""
+    env = gym.make(ENV_ID, scale="mini")
+    rec = record_episode(env, LoadingCyclePolicy(), seed=0, max_steps=30)
+    back = read_recording(rec.to_parquet(tmp_path / "cycle.parquet"))
+    assert back.equals(rec) and len(back) == 30
+    assert back.units["truck_payload"] == "kg" and back.units["passes"] == "1"
+    assert np.all(np.isfinite(back.signal("truck_payload"))) and np.all(back.signal("truck_payload") >= 0.0)
+    assert set(back.data["phase"]) <= {*PHASES, "error"}
+    dig = record_episode(gym.make(scaletwin_envs.ENV_ID, scale="mini"), lambda _: np.zeros(3), seed=0, max_steps=2)
+    assert not set(TRUCK_UNITS) & set(dig.data.columns)
