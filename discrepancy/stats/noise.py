@@ -10,6 +10,18 @@ Sensor noise
     C(2d, d)·σ_w², those of the AR(1) part ``σ_c² f_d(ρ)``; white and random-walk-like noise differ in the ratios
     of these variances (3 and 2 for the 2nd over the 1st).
 
+Drift
+    A 32-step spectral segment cannot see a slow random walk (a load pin's zero creeping, an inclinometer's
+    temperature drift), yet over the record its level wanders far beyond the white noise and reads as a bias. So
+    each channel also gets a random-walk part ``L_t = L_{t-1} + ε_t``, ``ε ~ N(0, drift²)``, zeroed before the
+    record's first sample (an offset present from the start is a bias, a change after it is drift), estimated on
+    the long time scales (:func:`estimate_drift`): the exact Gaussian likelihood of white + AR(1) + random walk
+    over the whole record (every block length up to the record's), profiled over the drift rate, with the
+    residual's steps clipped first (a discrepancy's jumps are not drift), and kept only with clear evidence overall
+    and none against it in either half of the record (a random walk's increments are stationary, a slow
+    discrepancy's are not). The null's noise samples carry the drift, and the whitening predicts it (a two-state
+    Kalman filter on such channels).
+
 Whitening
     The residual of each channel is replaced by its one-step prediction errors under that noise model (the Kalman
     filter of the state-space model above, time-varying from the first sample), divided by their standard
@@ -26,6 +38,7 @@ Twin spread
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -45,6 +58,22 @@ SEGMENT = 32  # control steps per spectral segment (3.2 s at ER12: several per d
 TAPER = 0.2  # fraction of the record in the cosine tapers at its ends
 COLOUR_EVIDENCE = 10.0  # log-likelihood gain needed to call a channel coloured (white noise exceeds it 1 in 20 000)
 CONVERGED = 1e-9  # relative change of the Kalman gain below which the filter is in steady state
+#: Drift rates searched, as random-walk increment variance per step relative to the short-scale noise variance:
+#: from 1e-5 (a walk that wanders about one noise SD over 100 000 steps, far below what a record shows) to 0.3
+#: (increments half the noise: the short-scale fit would call that coloured already). Spacing ×1.6.
+DRIFT_GRID = np.logspace(-5.0, np.log10(0.3), 23)
+#: Log-likelihood gain needed to call a channel drifting (twice it is the likelihood-ratio statistic: 12, whose
+#: tail beyond the boundary's ½χ²₁ is 2.7e-4 per white channel) ...
+DRIFT_EVIDENCE = 6.0
+#: ... and neither half of the record may speak against that rate by more than this (log-likelihood): a random
+#: walk's increments are stationary (its halves lost at most 0.6 in trials), a bump of discrepancy in one part of
+#: the cycle makes the other half lose 2–5.
+DRIFT_HALF_EVIDENCE = -1.0
+#: ... and the robust short-scale spectrum may fit at most this much worse (log-likelihood) with the drift's flat
+#: contribution to the differences added (the quiet-half evidence of the colour test, :data:`QUIET_EVIDENCE`).
+DRIFT_SPECTRUM_TOLERANCE = QUIET_EVIDENCE
+DIFFUSE = 1e6  # prior variance of the record's mean level, relative to the noise (the constant is not noise)
+MIN_DRIFT_STEPS = 24  # shorter records say nothing about long time scales
 
 
 @dataclass(frozen=True)
@@ -70,25 +99,30 @@ class NullSpec:
 
 @dataclass(frozen=True)
 class ChannelNoise:
-    """Noise of one channel: white SD, AR(1) coefficient and marginal SD of the coloured part (signal units)."""
+    """Noise of one channel: white SD, AR(1) coefficient and marginal SD of the coloured part, and the random-walk
+    increment SD per control step (``drift``; signal units)."""
 
     white: float
     rho: float = 0.0
     coloured: float = 0.0
+    drift: float = 0.0
 
     @property
     def sd(self) -> float:
-        """Marginal standard deviation of the noise."""
+        """Marginal standard deviation of the short-scale noise (white and coloured; the drift has none)."""
         return float(np.hypot(self.white, self.coloured))
 
     def sample(self, rng: np.random.Generator, steps: int) -> np.ndarray:
-        """A noise realisation of ``steps`` samples (stationary from the first)."""
+        """A noise realisation of ``steps`` samples (white and coloured stationary from the first, the drift
+        zeroed before it)."""
         out = self.white * rng.standard_normal(steps)
         if self.coloured > 0.0:
             eta = self.coloured * np.sqrt(1.0 - self.rho**2) * rng.standard_normal(steps)
             c0 = self.coloured * rng.standard_normal()
             c, _ = signal.lfilter([1.0], [1.0, -self.rho], eta, zi=[self.rho * c0])
             out += c
+        if self.drift > 0.0:
+            out += np.cumsum(self.drift * rng.standard_normal(steps))
         return out
 
 
@@ -154,6 +188,19 @@ def median_spectrum(d: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, np.nd
 
 
 def estimate_channel(residual: np.ndarray, floor: float) -> ChannelNoise:
+    """(ρ, σ_c, σ_w, drift) of one channel: the short-scale fit (:func:`short_scale`), then the drift on the long
+    time scales (:func:`estimate_drift`).
+
+    Args:
+        residual: (steps,) real minus twin, signal units.
+        floor: smallest white SD accepted (signal units).
+    """
+    short = short_scale(residual, floor)
+    drift, _ = estimate_drift(residual, short)
+    return dataclasses.replace(short, drift=drift) if drift > 0.0 else short
+
+
+def short_scale(residual: np.ndarray, floor: float) -> ChannelNoise:
     """(ρ, σ_c, σ_w) of one channel: a Whittle fit of AR(1) + white to the median-Welch spectrum of the residual's
     first differences, clipped at :data:`TRIM` robust deviations (see the module). The coloured part is kept only
     when it raises the likelihood beyond :data:`COLOUR_EVIDENCE` over white alone.
@@ -185,6 +232,83 @@ def estimate_channel(residual: np.ndarray, floor: float) -> ChannelNoise:
     return ChannelNoise(max(float(np.sqrt(w2[best])), floor), rho, coloured)
 
 
+def level_loglik(x: np.ndarray, short: ChannelNoise, q: np.ndarray, zeroed: bool = False) -> np.ndarray:
+    """Exact Gaussian log-likelihood of ``x`` (steps,) under ``short`` (white + AR(1)) plus a random walk of
+    increment variance ``q`` (one value per entry of ``q``, signal units²), its level unknown at the start (diffuse
+    prior: a free constant offset) or, ``zeroed``, zero before the first sample. Kalman filter of the state
+    (AR(1) part, level), all ``q`` at once."""
+    white2, rho, c2 = short.white**2, short.rho, short.coloured**2
+    q = np.asarray(q, float)
+    p00, p01 = np.full(len(q), c2), np.zeros(len(q))
+    p11 = q.copy() if zeroed else np.full(len(q), DIFFUSE * max(white2 + c2, 1e-300))
+    c, level, loglik = np.zeros(len(q)), np.zeros(len(q)), np.zeros(len(q))
+    for value in x:
+        s = np.maximum(p00 + 2.0 * p01 + p11 + white2, 1e-300)
+        nu = value - c - level
+        loglik -= 0.5 * (np.log(2.0 * np.pi * s) + nu * nu / s)
+        k0, k1 = (p00 + p01) / s, (p01 + p11) / s
+        c, level = rho * (c + k0 * nu), level + k1 * nu
+        p00, p01, p11 = p00 - k0 * k0 * s, p01 - k0 * k1 * s, p11 - k1 * k1 * s
+        p00, p01, p11 = rho**2 * p00 + c2 * (1.0 - rho**2), rho * p01, p11 + q
+    return loglik
+
+
+def _spectral_misfit(d: np.ndarray, short: ChannelNoise, q: float) -> float:
+    """How much worse (Whittle log-likelihood, weighted as in :func:`short_scale`) the median-Welch spectrum of the
+    differences ``d`` fits when a random walk of increment variance ``q`` adds its flat spectrum ``q`` to the
+    short-scale noise's: stationary drift shows in every segment, so the robust spectrum must accept it; a slow
+    discrepancy that only some segments see (and the long-scale likelihood takes for drift) it rejects."""
+    omega, spectrum, weight, _, _ = median_spectrum(robust_clip(d))
+    a = 2.0 * (1.0 - np.cos(omega))
+    b = a / (1.0 - 2.0 * short.rho * np.cos(omega) + short.rho**2)
+    s0 = np.maximum(short.white**2 * a + short.coloured**2 * (1.0 - short.rho**2) * b, 1e-300)
+    s1 = s0 + q
+    return weight * float(np.sum(np.log(s1) + spectrum / s1 - np.log(s0) - spectrum / s0))
+
+
+def estimate_drift(residual: np.ndarray, short: ChannelNoise) -> tuple[float, float]:
+    """Random-walk increment SD per step (signal units; 0: no drift) of one channel beside its short-scale noise
+    ``short``, and the log-likelihood gain it brings over no drift.
+
+    The residual's first differences are clipped at :data:`TRIM` robust deviations and summed again (a
+    discrepancy's steps are not drift; a random walk's increments are Gaussian and pass). The drift rate is the
+    best of :data:`DRIFT_GRID` by :func:`level_loglik`; it is kept when it gains :data:`DRIFT_EVIDENCE` over none
+    on the whole record, the robust short-scale spectrum accepts it (:func:`_spectral_misfit`) and neither half
+    loses more than −:data:`DRIFT_HALF_EVIDENCE` by it (see the module)."""
+    d = np.diff(residual)
+    if len(d) < MIN_DRIFT_STEPS or not np.all(np.isfinite(d)):
+        return 0.0, 0.0
+    x = np.concatenate([[0.0], np.cumsum(robust_clip(d))])
+    q = np.concatenate([[0.0], DRIFT_GRID * (short.white**2 + short.coloured**2)])
+    gain = level_loglik(x, short, q)
+    gain = gain[1:] - gain[0]
+    best = int(np.argmax(gain))
+    if gain[best] < DRIFT_EVIDENCE:
+        return 0.0, float(max(gain[best], 0.0))
+    if _spectral_misfit(d, short, float(q[best + 1])) > DRIFT_SPECTRUM_TOLERANCE:
+        return 0.0, float(gain[best])
+    half = len(x) // 2
+    for part in (x[:half], x[half:]):
+        ll = level_loglik(part, short, q[[0, best + 1]])
+        if ll[1] - ll[0] < DRIFT_HALF_EVIDENCE:
+            return 0.0, float(gain[best])
+    return float(np.sqrt(q[best + 1])), float(gain[best])
+
+
+def offset_or_drift(residual: np.ndarray, short: ChannelNoise) -> float:
+    """Log-likelihood by which a constant offset (free level, no drift) explains ``residual`` (steps,) better than
+    a random walk zeroed before the first sample (its rate the best of :data:`DRIFT_GRID`), both beside the
+    short-scale noise ``short``. Negative: the level wanders rather than sits (drift, or a slow discrepancy), so
+    the offset is no evidence of a sensor bias. Both models have one free parameter."""
+    x = np.where(np.isfinite(residual), residual, 0.0)
+    offset = float(level_loglik(x, short, np.array([0.0]))[0])
+    q = DRIFT_GRID * (short.white**2 + short.coloured**2)
+    walk = float(np.max(level_loglik(x, short, q, zeroed=True)))
+    # the diffuse prior of the offset costs ½ log(prior variance / variance of the level's estimate) ≈ ½ log(DIFFUSE
+    # × steps): given back, so the offset is a profiled free parameter like the walk's rate
+    return offset + 0.5 * float(np.log(DIFFUSE * len(x))) - walk
+
+
 def sensor_noise(residual: np.ndarray, spread: np.ndarray, twin: np.ndarray | None = None) -> list[ChannelNoise]:
     """The noise model of every column of ``residual`` (steps, signals); white SD floored by ``spread`` ×
     :data:`NOISE_FLOOR`.
@@ -212,7 +336,8 @@ def _unexplained_by(residual: np.ndarray, twin: np.ndarray) -> np.ndarray:
 
 @dataclass
 class Whitener:
-    """The one-step prediction-error filter of a set of channels (time-varying Kalman gain from the first sample).
+    """The one-step prediction-error filter of a set of channels (time-varying Kalman gain from the first sample;
+    channels with drift through a two-state filter of their AR(1) part and level).
 
     ``apply(x)`` maps a (steps, channels) residual to its prediction errors (same units); their variance under the
     noise model is ``variance`` (steps, channels).
@@ -224,6 +349,8 @@ class Whitener:
     variance: np.ndarray = field(init=False)  # (steps, channels), innovation variance
     settled: int = field(init=False)  # first step from which the gain is constant
     _rho: np.ndarray = field(init=False, repr=False)
+    _drifting: list[int] = field(init=False, repr=False)  # channels with a random-walk part
+    _gain2: np.ndarray = field(init=False, repr=False)  # (steps, drifting channels, 2): gains of (AR(1), level)
 
     def __post_init__(self) -> None:
         rho = np.array([c.rho for c in self.channels])
@@ -244,6 +371,27 @@ class Whitener:
             prior = rho**2 * (1.0 - k) * prior + q
         self.gain, self.variance = gain, var
         self._rho = rho
+        self._drifting = [j for j, c in enumerate(self.channels) if c.drift > 0.0]
+        self._gain2 = np.zeros((self.steps, len(self._drifting), 2))
+        if self._drifting:
+            self._gain2, self.variance[:, self._drifting] = self._two_state([self.channels[j]
+                                                                            for j in self._drifting])
+
+    def _two_state(self, channels: list[ChannelNoise]) -> tuple[np.ndarray, np.ndarray]:
+        """Kalman gains (steps, channels, 2) and innovation variances (steps, channels) of the state (AR(1) part,
+        drift level) of ``channels``: the AR(1) part stationary from the start, the level zero before it."""
+        rho = np.array([c.rho for c in channels])
+        c2, w2 = np.array([c.coloured**2 for c in channels]), np.array([c.white**2 for c in channels])
+        q = np.array([c.drift**2 for c in channels])
+        p00, p01, p11 = c2.copy(), np.zeros(len(channels)), q.copy()
+        gain, var = np.zeros((self.steps, len(channels), 2)), np.zeros((self.steps, len(channels)))
+        for t in range(self.steps):
+            s = np.maximum(p00 + 2.0 * p01 + p11 + w2, 1e-300)
+            k0, k1 = (p00 + p01) / s, (p01 + p11) / s
+            gain[t, :, 0], gain[t, :, 1], var[t] = k0, k1, s
+            p00, p01, p11 = p00 - k0 * k0 * s, p01 - k0 * k1 * s, p11 - k1 * k1 * s
+            p00, p01, p11 = rho**2 * p00 + c2 * (1.0 - rho**2), rho * p01, p11 + q
+        return gain, var
 
     def apply(self, x: np.ndarray, columns: list[int] | None = None) -> np.ndarray:
         """Prediction errors of ``x`` (steps, channels), or of ``x`` holding only ``columns`` of the channels;
@@ -270,7 +418,31 @@ class Whitener:
                 s, _ = signal.lfilter([k[j]], [1.0, -a], x[head:, j], zi=[a * state[j]])
                 prev = np.concatenate([[state[j]], s[:-1]])
                 out[head:, j] = x[head:, j] - rho[j] * prev
+        drifting = [k for k, c in enumerate(cols) if c in self._drifting]
+        if drifting:
+            out[:, drifting] = self._apply_two_state(x[:, drifting], [self._drifting.index(cols[k])
+                                                                      for k in drifting])
         return out
+
+    def _apply_two_state(self, x: np.ndarray, idx: list[int]) -> np.ndarray:
+        """Prediction errors of ``x`` (steps, k) through the two-state filter of drifting channels ``idx``."""
+        rho = np.array([self.channels[self._drifting[i]].rho for i in idx])
+        gain = self._gain2[:, idx]
+        c, level = np.zeros(len(idx)), np.zeros(len(idx))
+        out = np.empty_like(x)
+        for t in range(len(x)):
+            nu = x[t] - c - level
+            out[t] = nu
+            k = gain[min(t, self.steps - 1)]
+            c, level = rho * (c + k[:, 0] * nu), level + k[:, 1] * nu
+        return out
+
+
+def linear_evidence(z: np.ndarray, zx: np.ndarray) -> np.ndarray:
+    """Objective decrease (whitened units, the quadratic part of the Huber objective) of fitting ``a × x`` by
+    generalised least squares, given the whitened residual ``z`` and whitened regressor ``zx`` (same shape;
+    column-wise for 2-D): (Σ z zx)² / Σ zx². χ²₁ when the residual is noise as modelled."""
+    return np.sum(z * zx, axis=0) ** 2 / np.maximum(np.sum(zx * zx, axis=0), 1e-300)
 
 
 def twin_spread(deviations: np.ndarray) -> np.ndarray:
@@ -293,6 +465,11 @@ class NoiseModel:
     channels: list[ChannelNoise]
     whitener: Whitener
     twin: np.ndarray  # whitened twin spread, (steps, signals)
+    #: per signal, the mean :func:`linear_evidence` of a constant offset in the null runs (drift alone; set by
+    #: :func:`~discrepancy.stats.null.calibrate`; None: not calibrated)
+    bias_null: np.ndarray | None = None
+    #: signal → why a sensor fault on it was not tried (filled by the searches)
+    withheld: dict[str, str] = field(default_factory=dict)
 
     @classmethod
     def build(cls, names: tuple[str, ...], channels: list[ChannelNoise], deviations: np.ndarray) -> NoiseModel:
@@ -322,6 +499,16 @@ class NoiseModel:
         z = self.whitener.apply(residual[:, None], [j])[:, 0] / self.total[:, j]
         return np.where(np.isfinite(residual), z, np.nan)
 
+    @property
+    def drifting(self) -> tuple[str, ...]:
+        """Signals whose noise has a random-walk part."""
+        return tuple(n for n, c in zip(self.names, self.channels, strict=True) if c.drift > 0.0)
+
+    def bias_evidence(self, residual: np.ndarray) -> np.ndarray:
+        """Per signal, :func:`linear_evidence` of a constant offset in ``residual`` (steps, signals)."""
+        ones = self.whiten(np.ones_like(residual))
+        return linear_evidence(np.nan_to_num(self.whiten(residual)), ones)
+
     def sample(self, rng: np.random.Generator) -> np.ndarray:
-        """A sensor-noise realisation (steps, signals) from the model."""
+        """A sensor-noise realisation (steps, signals) from the model (with its drift)."""
         return np.stack([c.sample(rng, self.whitener.steps) for c in self.channels], axis=1)

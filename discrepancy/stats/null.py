@@ -66,15 +66,18 @@ def calibrate(ctx: Context, spec: NullSpec | None = None, effects: Sequence[Effe
     wins = ctx.windows()
     sizes = np.array([w.size for w in wins])
     rng = np.random.default_rng([spec.seed, 7919])
-    null_stats, costs = [], []
+    null_stats, costs, offsets = [], [], []
     for k in range(len(runs)):
-        sensed = noise.sample(rng)  # sensor noise as modelled
+        sensed = noise.sample(rng)  # sensor noise as modelled (drift included)
         fake = dev[k] + sensed  # scored like the recording: a noise model re-estimated (from the noise: the
         # twin's deviations would pass for coloured noise and make the null too narrow), with the spread of all
         # runs (a run's own rare jump left out would look like a huge residual and make that signal blind)
-        z = NoiseModel.build(ctx.names, sensor_noise(sensed, spread, regressors), dev).whiten(fake)
+        model = NoiseModel.build(ctx.names, sensor_noise(sensed, spread, regressors), dev)
+        z = model.whiten(fake)
         null_stats.append(window_stats(z, wins))
         costs.append(float(np.sum(huber(z))))
+        offsets.append(model.bias_evidence(fake))  # what a constant offset gains on noise alone
+    noise.bias_null = np.mean(offsets, axis=0) if offsets else None
     return NullModel(noise, NullCalibration.fit(null_stats, sizes), float(np.mean(costs)),
                      _channel_noise(ctx, center_result.signals))
 

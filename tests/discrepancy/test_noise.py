@@ -1,5 +1,6 @@
 """The sensor-noise model: a known AR(1) recovered, white noise called white even beside a slow discrepancy, the
-whitening filter making coloured noise white and leaving white noise alone, and coloured-noise nulls end to end."""
+whitening filter making coloured noise white and leaving white noise alone, drift (a random walk) found on long
+time scales and kept from passing for a sensor bias, and coloured-noise nulls end to end."""
 
 from __future__ import annotations
 
@@ -11,7 +12,15 @@ from scipy import signal
 
 from discrepancy import DiagnoseOptions, TwinSpec, diagnose
 from discrepancy.bench.synth import record
-from discrepancy.stats.noise import ChannelNoise, NoiseModel, Whitener, estimate_channel
+from discrepancy.search.sensors import OFFSET_EVIDENCE
+from discrepancy.stats.noise import (
+    ChannelNoise,
+    NoiseModel,
+    Whitener,
+    estimate_channel,
+    offset_or_drift,
+    sensor_noise,
+)
 
 STEPS = 300  # a long dig cycle at the control step
 
@@ -83,3 +92,84 @@ def test_a_perfect_twin_under_coloured_noise_is_not_called_wrong(twin: TwinSpec,
     clean = record(twin, [], 0.0, twin.seed).clean
     d = diagnose(_coloured(clean, rho, 0.01, 5), twin, options=DiagnoseOptions())
     assert not d.effects, [(e.effect, e.target) for e in d.effects]
+
+
+# --- drift ---------------------------------------------------------------------------------------------------------
+# Drift here is made by this file's own generator (a random walk of a given increment SD per step beside white noise
+# of SD 1), with seeds and magnitudes the noise model was not tuned on (tuning used seeds 1000-1099 and 2000-2029,
+# one magnitude, 0.2 per step).
+
+DRIFTS = (0.05, 0.1, 0.2, 0.4)  # random-walk increment SD per step, relative to the white SD
+HELD_OUT = range(7000, 7008)
+#: Weak walks whose level may still be named as a bias: one that moved early and then sat looks like a bias in a
+#: single record (seed 7003 at 0.05 and 0.1; 2 of 12 seeds in a wider trial). Known limit, kept visible here.
+WEAK = {0.05: 1, 0.1: 1}
+
+
+def _drifting(seed: int, drift: float, n: int = STEPS) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return rng.standard_normal(n) + np.cumsum(drift * rng.standard_normal(n))
+
+
+def _model(residual: np.ndarray) -> NoiseModel:
+    """The noise model of one channel as the null builds it, with the null's mean offset evidence (its runs: noise
+    drawn from the model, the model re-estimated, a constant offset fitted)."""
+    noise = NoiseModel.build(("x",), sensor_noise(residual[:, None], np.array([1.0])), np.zeros((0, len(residual), 1)))
+    rng = np.random.default_rng(99)
+    offsets = []
+    for _ in range(4):  # fewer null runs than the pipeline's 8: the test stays fast
+        sensed = noise.sample(rng)
+        again = NoiseModel.build(("x",), sensor_noise(sensed, np.array([1.0])), np.zeros((0, len(residual), 1)))
+        offsets.append(again.bias_evidence(sensed))
+    noise.bias_null = np.mean(offsets, axis=0)
+    return noise
+
+
+def test_white_noise_has_no_drift() -> None:
+    fits = [estimate_channel(np.random.default_rng(k).standard_normal(n), 1e-9)
+            for k in HELD_OUT for n in (100, 300)]
+    assert sum(f.drift > 0 for f in fits) <= 1, [f.drift for f in fits]
+
+
+@pytest.mark.parametrize("drift", [0.2, 0.4])
+def test_a_random_walk_is_found_and_its_rate_recovered(drift: float) -> None:
+    fits = [estimate_channel(_drifting(k, drift), 1e-9) for k in HELD_OUT]
+    found = [f for f in fits if f.drift > 0 or f.rho > 0.99]  # found as drift, or (strong) as ρ → 1 colour
+    assert len(found) >= 0.75 * len(fits), [(f.drift, f.rho) for f in fits]
+    rates = [f.drift for f in fits if f.drift > 0]
+    assert abs(np.log(np.median(rates) / drift)) < np.log(2.0), rates
+
+
+def test_the_whitening_predicts_drift() -> None:
+    model = ChannelNoise(white=1.0, drift=0.1)
+    x = model.sample(np.random.default_rng(4), 4000)
+    w = Whitener([model], len(x))
+    z = w.apply(x[:, None])[:, 0] / np.sqrt(w.variance[:, 0])
+    assert abs(np.corrcoef(z[:-1], z[1:])[0, 1]) < 0.05
+    assert np.std(z) == pytest.approx(1.0, abs=0.05)
+
+
+def _offset_named(r: np.ndarray) -> bool:
+    """Would the sensor-fault search try a bias on this one-channel residual (the rule of ``search/sensors.py``)?"""
+    model = _model(r)
+    evidence = float(model.bias_evidence(r[:, None])[0])
+    if offset_or_drift(r, dataclasses.replace(model.channels[0], drift=0.0)) < 0.0:
+        return False
+    bar = OFFSET_EVIDENCE * max(1.0, float(model.bias_null[0])) if model.drifting else OFFSET_EVIDENCE
+    return evidence >= bar
+
+
+@pytest.mark.parametrize("drift", DRIFTS)
+def test_drift_alone_does_not_pass_for_a_sensor_bias(drift: float) -> None:
+    """(a) Drifting nulls of several magnitudes and held-out seeds: no offset that would be named as a bias."""
+    named = [k for k in HELD_OUT if _offset_named(_drifting(k, drift))]
+    assert len(named) <= WEAK.get(drift, 0), named
+
+
+def test_white_nulls_stay_clean_and_a_bias_under_white_noise_is_seen() -> None:
+    """(b) White nulls: no drift, no offset named; (c) a bias of 0.4 noise SD over 300 steps (evidence about 50):
+    named, on a channel called white."""
+    for k in HELD_OUT:
+        r = np.random.default_rng(k).standard_normal(STEPS)
+        assert not _model(r).drifting and not _offset_named(r)
+        assert _offset_named(r + 0.4), k
