@@ -19,8 +19,10 @@ Drift
     over the whole record (every block length up to the record's), profiled over the drift rate, with the
     residual's steps clipped first (a discrepancy's jumps are not drift), and kept only with clear evidence overall
     and none against it in either half of the record (a random walk's increments are stationary, a slow
-    discrepancy's are not). The null's noise samples carry the drift, and the whitening predicts it (a two-state
-    Kalman filter on such channels).
+    discrepancy's are not). The null's noise samples carry the drift, so a drifting channel's wandering level is
+    part of what the null expects; the whitening does not predict it: a drift estimate is confounded with a slow
+    physical discrepancy on the same channel (a payload's centre of mass moves x_b as slowly as a creeping zero),
+    and whitening it away biased the fitted parameters of such effects (payload COM height 18 % short).
 
 Whitening
     The residual of each channel is replaced by its one-step prediction errors under that noise model (the Kalman
@@ -336,8 +338,8 @@ def _unexplained_by(residual: np.ndarray, twin: np.ndarray) -> np.ndarray:
 
 @dataclass
 class Whitener:
-    """The one-step prediction-error filter of a set of channels (time-varying Kalman gain from the first sample;
-    channels with drift through a two-state filter of their AR(1) part and level).
+    """The one-step prediction-error filter of a set of channels (time-varying Kalman gain from the first sample) under
+    their short-scale noise (white and AR(1); a channel's drift is left to the null, see the module docstring).
 
     ``apply(x)`` maps a (steps, channels) residual to its prediction errors (same units); their variance under the
     noise model is ``variance`` (steps, channels).
@@ -349,8 +351,6 @@ class Whitener:
     variance: np.ndarray = field(init=False)  # (steps, channels), innovation variance
     settled: int = field(init=False)  # first step from which the gain is constant
     _rho: np.ndarray = field(init=False, repr=False)
-    _drifting: list[int] = field(init=False, repr=False)  # channels with a random-walk part
-    _gain2: np.ndarray = field(init=False, repr=False)  # (steps, drifting channels, 2): gains of (AR(1), level)
 
     def __post_init__(self) -> None:
         rho = np.array([c.rho for c in self.channels])
@@ -371,27 +371,6 @@ class Whitener:
             prior = rho**2 * (1.0 - k) * prior + q
         self.gain, self.variance = gain, var
         self._rho = rho
-        self._drifting = [j for j, c in enumerate(self.channels) if c.drift > 0.0]
-        self._gain2 = np.zeros((self.steps, len(self._drifting), 2))
-        if self._drifting:
-            self._gain2, self.variance[:, self._drifting] = self._two_state([self.channels[j]
-                                                                            for j in self._drifting])
-
-    def _two_state(self, channels: list[ChannelNoise]) -> tuple[np.ndarray, np.ndarray]:
-        """Kalman gains (steps, channels, 2) and innovation variances (steps, channels) of the state (AR(1) part,
-        drift level) of ``channels``: the AR(1) part stationary from the start, the level zero before it."""
-        rho = np.array([c.rho for c in channels])
-        c2, w2 = np.array([c.coloured**2 for c in channels]), np.array([c.white**2 for c in channels])
-        q = np.array([c.drift**2 for c in channels])
-        p00, p01, p11 = c2.copy(), np.zeros(len(channels)), q.copy()
-        gain, var = np.zeros((self.steps, len(channels), 2)), np.zeros((self.steps, len(channels)))
-        for t in range(self.steps):
-            s = np.maximum(p00 + 2.0 * p01 + p11 + w2, 1e-300)
-            k0, k1 = (p00 + p01) / s, (p01 + p11) / s
-            gain[t, :, 0], gain[t, :, 1], var[t] = k0, k1, s
-            p00, p01, p11 = p00 - k0 * k0 * s, p01 - k0 * k1 * s, p11 - k1 * k1 * s
-            p00, p01, p11 = rho**2 * p00 + c2 * (1.0 - rho**2), rho * p01, p11 + q
-        return gain, var
 
     def apply(self, x: np.ndarray, columns: list[int] | None = None) -> np.ndarray:
         """Prediction errors of ``x`` (steps, channels), or of ``x`` holding only ``columns`` of the channels;
@@ -418,23 +397,6 @@ class Whitener:
                 s, _ = signal.lfilter([k[j]], [1.0, -a], x[head:, j], zi=[a * state[j]])
                 prev = np.concatenate([[state[j]], s[:-1]])
                 out[head:, j] = x[head:, j] - rho[j] * prev
-        drifting = [k for k, c in enumerate(cols) if c in self._drifting]
-        if drifting:
-            out[:, drifting] = self._apply_two_state(x[:, drifting], [self._drifting.index(cols[k])
-                                                                      for k in drifting])
-        return out
-
-    def _apply_two_state(self, x: np.ndarray, idx: list[int]) -> np.ndarray:
-        """Prediction errors of ``x`` (steps, k) through the two-state filter of drifting channels ``idx``."""
-        rho = np.array([self.channels[self._drifting[i]].rho for i in idx])
-        gain = self._gain2[:, idx]
-        c, level = np.zeros(len(idx)), np.zeros(len(idx))
-        out = np.empty_like(x)
-        for t in range(len(x)):
-            nu = x[t] - c - level
-            out[t] = nu
-            k = gain[min(t, self.steps - 1)]
-            c, level = rho * (c + k[:, 0] * nu), level + k[:, 1] * nu
         return out
 
 

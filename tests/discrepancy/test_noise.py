@@ -140,15 +140,6 @@ def test_a_random_walk_is_found_and_its_rate_recovered(drift: float) -> None:
     assert abs(np.log(np.median(rates) / drift)) < np.log(2.0), rates
 
 
-def test_the_whitening_predicts_drift() -> None:
-    model = ChannelNoise(white=1.0, drift=0.1)
-    x = model.sample(np.random.default_rng(4), 4000)
-    w = Whitener([model], len(x))
-    z = w.apply(x[:, None])[:, 0] / np.sqrt(w.variance[:, 0])
-    assert abs(np.corrcoef(z[:-1], z[1:])[0, 1]) < 0.05
-    assert np.std(z) == pytest.approx(1.0, abs=0.05)
-
-
 def _offset_named(r: np.ndarray) -> bool:
     """Would the sensor-fault search try a bias on this one-channel residual (the rule of ``search/sensors.py``)?"""
     model = _model(r)

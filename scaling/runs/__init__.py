@@ -1,0 +1,3 @@
+"""Stage 5, runs: the paper's pipeline and reproduction, their reports, plots and rerun logs, saved runs and
+provenance.
+"""
