@@ -10,8 +10,9 @@ horizontal at full height (the dump angle of SAE J732 / ISO 7131 specification s
 The variant moves four pins of the tilt linkage by 1–10 % of the boom length (bell crank bottom and top, link-B
 pin on the bucket, tilt cylinder frame pin; the boom, lift circuit, bucket shell and masses are those of the
 machine), resizes the tilt cylinder's closed length and stroke to cover the dig workspace and the dump, and its
-bore (with the pump flow, so speeds stay) so that the breakout force
-(:func:`scaletwin_envs.physics.statics.breakout_force`) is not below the original's.
+bore (with the pump flow, so speeds stay) so that neither the breakout force
+(:func:`scaletwin_envs.physics.statics.breakout_force`) nor the curl torque at relief anywhere in the dig workspace
+(:func:`curl_torque_deficit`) is below the original's.
 The offsets were found by a random search over the four pins (2026-11-26, ER12 geometry, boom-length units) for the
 smallest total move such that the link-B loop closes and the tilt length is strictly monotonic in bucket pitch from
 rack-back at the ground to a 0.9 rad dump at full raise, with the tilt linkage's force ratio in 0.35–3.0 everywhere
@@ -50,6 +51,15 @@ FORCE_RATIO = (0.35, 3.0)  # |tilt linkage force ratio| kept inside this band: a
 SEARCH_TRIES = 400  # local-search candidates per machine (≈ 5 ms each on one core)
 SEARCH_STEP = 0.03  # boom lengths: local-search perturbation of each offset component
 SEARCH_SEED = 16  # fixed, so a machine's variant is reproducible
+#: Dig workspace over which the variant's curl torque at relief must match the original's: the lowest
+#: :data:`CURL_BOOM_SPAN` of the lift stroke's boom range (the bucket fills with the boom near the ground) and bucket
+#: pitches from :data:`DIG_LOW_PITCH` to :data:`RACK_PITCH_GROUND`. Matching the breakout force alone (one pose,
+#: floor level) left the variant's curl torque 10-15 % below the original's at pitches 0.1-0.4 rad (its velocity
+#: ratio falls faster towards rack-back), and a wa475 curl in clay loam stalled at 0.26 rad with the tilt at relief
+#: and drove on through the pile, where the original linkage racks back (2026-11-28).
+CURL_BOOM_SPAN = 0.25
+CURL_GRID = 12  # pitches (and 3 boom angles) of the curl-torque check
+CURL_STEP = 0.005  # rad: half-step of the central difference giving dL_tilt/dθ
 #: Bucket stops sit where the tilt linkage's velocity ratio dL_tilt/dθ falls to this fraction of its peak: beyond,
 #: the link-B / bucket lever heads for its toggle (dL/dθ = 0) and the cylinder stops controlling the bucket (the
 #: variant's toggles lie ~0.2 rad past the stops; without stops a racked, loaded bucket flips over, 2026-11-27).
@@ -116,6 +126,31 @@ def _stops(geometry: LinkageGeometry, low: float, high: float, booms: int) -> tu
     return float(rel[lo]), float(rel[hi])
 
 
+def _velocity_ratio(geometry: LinkageGeometry, boom: float, pitch: float) -> float:
+    """dL_tilt/dθ (m/rad) at boom angle and absolute bucket pitch (rad); NaN where the linkage does not close."""
+    try:
+        up = solve_pose(geometry, boom, pitch + CURL_STEP - boom).tilt_length
+        down = solve_pose(geometry, boom, pitch - CURL_STEP - boom).tilt_length
+    except LinkageUnreachable:
+        return math.nan
+    return (up - down) / (2.0 * CURL_STEP)
+
+
+def curl_torque_deficit(original: LoaderSpec, variant: LoaderSpec) -> float:
+    """Largest ratio of the original's curl torque at relief to the variant's over the dig workspace (1): above 1
+    the variant curls weaker somewhere. Torque at relief = extend force × dL_tilt/dθ (virtual work; the linkage's
+    own weight left out, it is the same bucket on both); poses the original cannot reach are skipped."""
+    low, high = _boom_range(original)
+    worst = 0.0
+    for boom in np.linspace(low, low + CURL_BOOM_SPAN * (high - low), 3):
+        for pitch in np.linspace(DIG_LOW_PITCH, RACK_PITCH_GROUND, CURL_GRID):
+            mine = original.tilt.max_extend_force * _velocity_ratio(original.geometry, float(boom), float(pitch))
+            theirs = variant.tilt.max_extend_force * _velocity_ratio(variant.geometry, float(boom), float(pitch))
+            if math.isfinite(mine) and math.isfinite(theirs) and theirs > 0.0:
+                worst = max(worst, mine / theirs)
+    return worst
+
+
 def _tilt_lengths(spec: LoaderSpec, geometry: LinkageGeometry) -> np.ndarray:
     """Tilt cylinder lengths (m) over the required poses; raises ``ValueError`` naming the first failed condition."""
     by_boom: dict[float, list[float]] = {}
@@ -171,7 +206,8 @@ def dump_capable(spec: LoaderSpec, tries: int = SEARCH_TRIES) -> LoaderSpec:
         closed = float(lengths.min()) - STROKE_MARGIN * span
         tilt = dataclasses.replace(spec.tilt, closed_length=closed, stroke=(1.0 + 2.0 * STROKE_MARGIN) * span)
         out = dataclasses.replace(spec, geometry=geometry, tilt=tilt, name=f"{spec.name}+dump")
-        area = max(breakout_force(spec) / breakout_force(out), 1.0)  # keep the machine's breakout force
+        # keep the machine's breakout force and its curl torque over the dig workspace (both ∝ piston area)
+        area = max(breakout_force(spec) / breakout_force(out), curl_torque_deficit(spec, out), 1.0)
         if area > 1.0:
             k = math.sqrt(area)
             tilt = dataclasses.replace(

@@ -18,7 +18,14 @@ Mass. Material leaves the bucket when it holds more than its pitch allows
 (:func:`scaletwin_envs.physics.bucket.capacity_fraction`), except a film of ``carry_back`` × heaped capacity that
 adhesion keeps in the bucket (carry-back). It falls from the cutting edge: into the truck when the edge is between
 the truck's walls (on the truck leg), onto the pile when over the pile (pile leg), else on the ground (spill). Pile
-(strip) + bucket + truck + spill is conserved to round-off (``info["mass_balance"]``). The truck's payload, its
+(strip) + bucket + truck + spill is conserved to round-off (``info["mass_balance"]``).
+
+Slumping. A face cut steeper than the pile's repose slope collapses to it (:func:`slump`, every control step) where
+the soil cannot stand in a vertical cut as tall as the pile (Culmann / Terzaghi critical height
+4c/γ·tan(45° + φ/2), :func:`critical_height`): cohesionless gravel and sand slump, the presets' cohesive soils
+(critical height 5 m for sandy loam, 10 m for clay loam) stand. The dig env's pile never slumps (one dig); over
+several passes in gravel its vertical faces, 0.5 L tall on the mini, stalled every dig after the second at 0.2-0.3
+of a bucket (2026-11-28). The truck's payload, its
 centre of mass (along the body, and height above the floor for a strip as wide as the bucket) and the passes are
 tracked. The episode terminates once the truck holds ``done_fraction`` of its target payload and the bucket has
 backed out of the body; it is truncated at ``max_episode_time`` or on a physics blow-up (``info["sim_error"]``).
@@ -94,6 +101,66 @@ MOVING = 0.02  # × √(gL): travel speed below which the machine counts as stop
 # soil-metal adhesion (gravel 1 %, clay loam 5.5 %; estimate in the range of the 1-10 % carry-back reported for
 # dry to sticky materials).
 CARRY_BACK_BASE, CARRY_BACK_PER_KPA = 0.01, 0.003
+SLUMP_TOL = 1e-4  # boom lengths: material above the repose envelope left in place (no work on round-off)
+SLUMP_ROUNDS = 8  # collapses (runs of over-steep columns) resolved per control step at most, per direction
+BISECT = 60  # bisection steps placing a collapse's deposit (the volume then matches to round-off)
+
+
+def critical_height(soil: SoilSpec) -> float:
+    """Height (m) of a vertical cut the soil stands in (Culmann / Terzaghi): 4c/γ·tan(45° + φ/2); 0 without
+    cohesion."""
+    return 4.0 * soil.cohesion / soil.unit_weight * math.tan(0.25 * math.pi + 0.5 * soil.friction_angle)
+
+
+def _collapse_left(h: np.ndarray, step: float, tol: float) -> bool:
+    """Collapse the run of columns rising more than ``step`` (m per cell) from the lowest surface on their left
+    that holds the most material: it slides to the left and settles as a slope of ``step`` per cell in front of
+    the cut (a line shifted until its volume is the material cut, by bisection). Edits ``h`` (m) in place,
+    keeping its sum to round-off; returns whether anything moved."""
+    ramp = step * np.arange(h.size)
+    envelope = np.minimum.accumulate(h - ramp) + ramp  # the highest surface no steeper than step from the left
+    cut = h - envelope
+    over = cut > tol
+    if not over.any():
+        return False
+    edges = np.flatnonzero(np.diff(np.concatenate(([0], over.astype(np.int8), [0]))))
+    runs = list(zip(edges[::2], edges[1::2] - 1, strict=True))
+    lo, hi = max(runs, key=lambda r: float(cut[r[0] : r[1] + 1].sum()))
+    volume = float(cut[lo : hi + 1].sum())
+    base = h[: hi + 1].copy()
+    base[lo:] = envelope[lo : hi + 1]
+    cap = np.full(hi + 1, np.inf)
+    cap[lo:] = h[lo : hi + 1]  # the cut columns settle no higher than they stood
+    idx = np.arange(hi + 1)
+
+    def settled(foot: float) -> np.ndarray:
+        return np.maximum(base, np.minimum(step * (idx - foot), cap))
+
+    near, far = float(hi), float(-hi - 1 - h.max() / step)  # deposit none / more than volume
+    for _ in range(BISECT):
+        mid = 0.5 * (near + far)
+        if float((settled(mid) - base).sum()) > volume:
+            far = mid
+        else:
+            near = mid
+    new = settled(near)
+    gain = new - base
+    new[int(np.argmax(gain))] += volume - float(gain.sum())  # bisection's remainder (round-off)
+    h[: hi + 1] = new
+    return True
+
+
+def slump(h: np.ndarray, step: float, tol: float) -> None:
+    """Let over-steep faces of the height field ``h`` (m, one value per cell) collapse to slopes of ``step`` m per
+    cell, both ways (:func:`_collapse_left` and its mirror), at most :data:`SLUMP_ROUNDS` collapses each; the
+    sum of ``h`` is kept to round-off."""
+    for flip in (False, True):
+        view = h[::-1].copy() if flip else h
+        for _ in range(SLUMP_ROUNDS):
+            if not _collapse_left(view, step, tol):
+                break
+        if flip:
+            h[:] = view[::-1]
 
 
 def _number(name: str, value: Any, low: float = 0.0, strict: bool = True) -> float:
@@ -303,6 +370,9 @@ class WheelLoaderLoadTruckEnv(WheelLoaderDigEnv):
         super().reset_model()  # builds pile and dig model, reads signals and the observation
         self._set_leg(0)
         self._apex = float(self.data.qpos[0]) - self.turn_back * self.length
+        # slope the pile was tipped at (the soil's repose angle as perturbed at reset), m per cell; None: faces stand
+        stands = critical_height(self.soil) >= float(self.pile.h.max())
+        self._slump_step = None if stands else float(np.diff(self.pile.initial).max()) * (1.0 + 1e-9)
         self.total_volume = self.pile.volume + self.dig.load_volume
         self._last_obs = self._get_obs()
         return self._last_obs
@@ -321,6 +391,9 @@ class WheelLoaderLoadTruckEnv(WheelLoaderDigEnv):
     def _after_physics(self) -> None:
         cavity = np.array([self._site_xz(n) for n in ("bucket_heel", "bucket_edge", "bucket_back_top")])
         held = capacity_fraction(self._bucket_pitch()) * self.dig.capacity
+        if self._slump_step is not None:
+            slump(self.pile.h, self._slump_step, SLUMP_TOL * self.length)
+            self.pile._top = max(self.pile._top, float(self.pile.h.max()))  # its cheap reach test's bound
         if self.leg == 0:
             self._dig_in(cavity, held)
         excess = self.dig.load_volume - max(held, self.carry_back * self.dig.capacity)

@@ -5,7 +5,8 @@ The dig is delegated to a dig policy acting on the dig view of the observation (
 :data:`TUNED` parameters) or a learned one (anything with ``act`` or Stable-Baselines3's ``predict``, e.g.
 ``zoo.load("bucketfill-ppo")``); the default, :class:`FaceDigPolicy`, is the scripted dig with a lift-crowd cut on
 the face left by earlier passes. The rest is a state machine on the dimensionless observation, so the same
-thresholds serve every size: lift the loaded bucket clear of the pile while backing off slowly, reverse with the
+thresholds serve every size: lift the loaded bucket clear of the pile while backing off slowly (on the last pass,
+tip back onto the pile what the truck no longer needs), reverse with the
 bucket racked (the boom rising while the bucket is below carry height) until the leg switches, haul forward raising
 the boom, stop with the edge over the body once it clears the truck's side, tip until the bucket is empty (or the
 truck holds its target: partial last dump), back out, lower, and hand back to the dig policy.
@@ -13,6 +14,7 @@ truck holds its target: partial last dump), back out, lower, and hand back to th
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from enum import IntEnum
 from typing import Any
@@ -22,6 +24,7 @@ import numpy as np
 from scaletwin_envs.envs.load_truck import OBS_INDEX
 from scaletwin_envs.envs.wheel_loader_dig import OBS_INDEX as DIG_OBS_INDEX
 from scaletwin_envs.envs.wheel_loader_dig import OBS_NAMES as DIG_OBS_NAMES
+from scaletwin_envs.physics.bucket import capacity_fraction
 from scaletwin_envs.policies.base import DigPolicy
 from scaletwin_envs.policies.scripted import TUNED, ScriptedDigPolicy, Stage
 
@@ -37,6 +40,7 @@ class CycleStage(IntEnum):
     DUMP = 3
     BACK_OUT = 4
     LIFT_OUT = 5  # between DIG and REVERSE (numbered last so the earlier values keep their meaning)
+    SHED = 6  # between LIFT_OUT and REVERSE on the last pass: tip back onto the pile what the truck does not need
 
 
 # The dump linkage turns the bucket 4-6x faster per unit of tilt stroke than the presets' (velocity ratio
@@ -46,9 +50,22 @@ class CycleStage(IntEnum):
 # quarter of its load (2026-11-27); at 0.4/rad without D (per-step loop gain ≤ 0.25) the bucket settles on target.
 PITCH_KP = 0.4  # tilt command per rad of pitch error
 PITCH_KD = 0.0  # tilt command per rad of pitch change in one step (a D term on a one-step-old rate destabilised it)
+SHED_MIN_TILT = 0.05  # smallest forward tilt command while shedding: the last hundredths of surplus still go
 # rad: pitch error at which raising stops, so the hold keeps up with the racking of the boom (0.5: with the slower
 # hold, 0.25 held the boom still for most of the haul, 2026-11-27)
 LIFT_GATE = 0.5
+
+
+#: (fill, pitch) pairs of the bucket's capacity curve over the pitches where it changes (rad: empty at about -0.9,
+#: the full heap from 0.35): the pitch at which the bucket holds a given fill, by interpolation.
+_PITCHES = np.linspace(-0.9, 0.35, 126)
+_HELD = np.array([capacity_fraction(float(p)) for p in _PITCHES])
+
+
+def pitch_holding(fill: float) -> float:
+    """Bucket pitch (rad) at which the bucket holds ``fill`` (fraction of heaped capacity) and spills the rest
+    (:func:`~scaletwin_envs.physics.bucket.capacity_fraction` inverted)."""
+    return float(np.interp(fill, _HELD, _PITCHES))
 
 
 def _hold_pitch(pitch: float, rate: float, target: float, kp: float = PITCH_KP, kd: float = PITCH_KD) -> float:
@@ -78,11 +95,14 @@ class FaceDigPolicy(ScriptedDigPolicy):
         cut_gain: lift command per boom length of depth beyond ``cut_depth``.
         face_steps: control steps of a dig for which a slow penetration with the cut deeper than ``cut_depth``
             does not count as a stall (40 ≈ 8 Froude times, several times what the boom needs to lift a cut).
+        face_reach: distance to the face (extrapolated to the ground) within which the approach may turn into
+            penetration, boom lengths.
     """
 
     cut_depth: float = 0.25
     cut_gain: float = 5.0
     face_steps: int = 40
+    face_reach: float = 0.1
 
     def reset(self) -> None:
         """Start a new dig."""
@@ -90,6 +110,12 @@ class FaceDigPolicy(ScriptedDigPolicy):
         self._face = 0
 
     def _advance(self, o: dict[str, float]) -> None:
+        # a pass hands over on the way back from the truck, the boom still raised and the bucket often tipped onto
+        # the ground (edge_depth > 0 off the pile): penetrating from there ran the edge into the face at 0.2 L
+        # height and curled after a 0.6 L push at 0.1-0.3 of a bucket (er12 and mini in gravel, 2026-11-28);
+        # the approach lowers the boom and levels the bucket until the edge is at the face
+        if self.stage is Stage.APPROACH and o["edge_x_to_pile"] < -self.face_reach:
+            return
         # slowed by the face while the boom brings the cut up to cut_depth is not a stall (the scripted dig curls
         # after 3 slow steps), for at most face_steps steps (a boom that cannot lift the cut then curls)
         if self.stage is Stage.PENETRATE and o["edge_depth"] > self.cut_depth and self._face < self.face_steps:
@@ -124,6 +150,21 @@ class LoadingCyclePolicy(DigPolicy):
             scripted dig's ``clearance``).
         empty_fill: fill below which the bucket counts as emptied (carry-back stays in it).
         pitch_kp, pitch_kd: gains of the pitch hold (:data:`PITCH_KP`, :data:`PITCH_KD`).
+        lift_rate: largest change of the lift command from one control step to the next outside the dig (a
+            control step is a fixed fraction of the Froude time, so the boom ramps alike at every size).
+        shed_margin: fill (fraction of heaped capacity) kept above what the truck still needs when the last
+            pass tips the surplus back onto the pile.
+        shed_tilt: largest tilt command while shedding (the dump linkage turns up to ~0.6 rad per step at full
+            command near rack-back: slowly, the fill follows the pitch without overshooting).
+        shed_gain: forward tilt command per bucket fill of surplus while shedding (between
+            :data:`SHED_MIN_TILT` and ``shed_tilt``).
+        shed_clearance: edge height above the pile surface the boom rises to before the bucket tips, L.
+
+    The last pass takes what the truck still needs: the truck's payload per bucket fill is learnt from the dumps
+    so far (``truck_fill`` gained over bucket fill emptied), so the policy needs no truck size; after the dig, a
+    bucket holding more than ``(1 - truck_fill)`` worth is raised clear of the pile and tipped forward over it
+    until it holds just that before reversing (the surplus runs back onto the pile; :func:`pitch_holding` gives
+    the pitch that holds a fill).
     """
 
     dig: Any = field(default_factory=lambda: FaceDigPolicy(**TUNED))
@@ -137,6 +178,11 @@ class LoadingCyclePolicy(DigPolicy):
     pitch_kd: float = PITCH_KD
     pile_clearance: float = 0.08
     empty_fill: float = 0.08
+    lift_rate: float = 0.2
+    shed_margin: float = 0.03
+    shed_tilt: float = 0.3
+    shed_gain: float = 1.0
+    shed_clearance: float = 0.2
 
     def __post_init__(self) -> None:
         self.reset()
@@ -145,8 +191,18 @@ class LoadingCyclePolicy(DigPolicy):
         self.stage = CycleStage.DIG
         self._dump_steps = 0
         self._pitch: float | None = None
+        self._lift = 0.0  # last lift command
+        self._dumped_fill = self._dumped_truck = 0.0  # bucket fill emptied and truck_fill gained by the dumps
+        self._before: tuple[float, float] = (0.0, 0.0)  # fill and truck_fill as the current dump started
         if hasattr(self.dig, "reset"):
             self.dig.reset()
+
+    def needed_fill(self, truck_fill: float) -> float:
+        """Bucket fill (fraction of heaped capacity) that brings the truck to its target from ``truck_fill``; inf
+        before the first dump (the truck's size in buckets is not known yet)."""
+        if self._dumped_truck <= 0.0 or self._dumped_fill <= 0.0:
+            return math.inf
+        return max(1.0 - truck_fill, 0.0) * self._dumped_fill / self._dumped_truck
 
     def _dig_action(self, obs: np.ndarray) -> np.ndarray:
         view = obs[:N_DIG]
@@ -167,13 +223,35 @@ class LoadingCyclePolicy(DigPolicy):
         rate = 0.0 if self._pitch is None else pitch - self._pitch
         self._pitch = pitch
         if self.stage is CycleStage.DIG:
-            return self._dig_action(obs)
+            action = self._dig_action(obs)
+        else:
+            action = self._carry_action(o, pitch, rate)
+            # the boom starts and stops gradually: a lift command stepping between 0 and 1 (bang-bang height
+            # keeping, the pitch gate) rocked the loaded bucket on its tilt cylinder by ±0.3 rad per step on the
+            # mini, shook 0.15 of a bucket out on the way back and throttled the raise at the truck (2026-11-28)
+            step = self.lift_rate
+            action[0] = float(np.clip(action[0], self._lift - step, self._lift + step))
+        self._lift = float(action[0])
+        return action
+
+    def _carry_action(self, o: dict[str, float], pitch: float, rate: float) -> np.ndarray:
+        """The action of every stage but the dig (see the module docstring); ``rate``: pitch change in the last
+        step, rad."""
         hold = _hold_pitch(pitch, rate, self.carry_pitch, self.pitch_kp, self.pitch_kd)
         gate = _gate(pitch, self.carry_pitch)
         if self.stage is CycleStage.LIFT_OUT:
             # boom up out of the pile at full speed, backing off slowly: a bucket dragged back through the pile
             # or along the ground bounces and throws its heap (mini, 2026-11-27)
             return np.array([1.0, hold, self.lift_out_drive], dtype=np.float32)
+        if self.stage is CycleStage.SHED:
+            # boom up to shed_clearance over the pile (tipped near it, the edge ran into it), then tip forward
+            # faster the more surplus is left (the fill follows the pitch within a step: no overshoot to wait on)
+            lift = 1.0 if o["edge_depth"] > -self.shed_clearance else 0.0
+            surplus = o["fill"] - self.needed_fill(o["truck_fill"])
+            tilt = -float(np.clip(self.shed_gain * surplus, SHED_MIN_TILT, self.shed_tilt))
+            if o["edge_depth"] > -self.pile_clearance:
+                tilt = hold
+            return np.array([lift, tilt, 0.0], dtype=np.float32)
         if self.stage is CycleStage.REVERSE:
             # below carry height the boom rises whatever the pitch (the bucket must not touch the ground);
             # above it, it waits for the hold
@@ -198,15 +276,23 @@ class LoadingCyclePolicy(DigPolicy):
         if self.stage is CycleStage.DIG and o["leg"] == 0.0 and self._dig_done(o):
             self.stage = CycleStage.LIFT_OUT
         elif self.stage is CycleStage.LIFT_OUT and (o["edge_depth"] < -self.pile_clearance or o["leg"] == 1.0):
-            self.stage = CycleStage.REVERSE
+            surplus = o["fill"] > self.needed_fill(o["truck_fill"]) + self.shed_margin
+            self.stage = CycleStage.SHED if surplus and o["leg"] == 0.0 else CycleStage.REVERSE
+        elif self.stage is CycleStage.SHED:
+            shed = o["fill"] <= self.needed_fill(o["truck_fill"]) + self.shed_margin
+            if shed or o["bucket_pitch"] < pitch_holding(0.0):  # (an empty bucket: nothing more to shed)
+                self.stage = CycleStage.REVERSE
         elif self.stage is CycleStage.REVERSE and o["leg"] == 1.0:
             self.stage = CycleStage.HAUL
         elif self.stage is CycleStage.HAUL and o["edge_x_to_truck"] > self.dump_reach and o["clearance"] > 0.0:
             self.stage, self._dump_steps = CycleStage.DUMP, 0
+            self._before = (o["fill"], o["truck_fill"])
         elif self.stage is CycleStage.DUMP:
             self._dump_steps += 1
             if o["fill"] < self.empty_fill or o["truck_fill"] >= 1.0 or o["bucket_pitch"] < -1.0:
                 self.stage = CycleStage.BACK_OUT
+                self._dumped_fill += self._before[0] - o["fill"]
+                self._dumped_truck += o["truck_fill"] - self._before[1]
         elif self.stage is CycleStage.BACK_OUT and o["leg"] == 0.0:
             self.stage = CycleStage.DIG
             if hasattr(self.dig, "reset"):

@@ -12,17 +12,19 @@ from gymnasium.utils.env_checker import check_env as gym_check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import scaletwin_envs  # registers the ids
-from scaletwin_envs.envs.dump_linkage import bucket_stops
-from scaletwin_envs.envs.load_truck import ENV_ID, OBS_NAMES, PHASES
+from scaletwin_envs.envs.dump_linkage import bucket_stops, curl_torque_deficit, dump_capable
+from scaletwin_envs.envs.load_truck import ENV_ID, OBS_INDEX, OBS_NAMES, PHASES, critical_height, slump
 from scaletwin_envs.envs.loader_base import EpisodeFinishedError
-from scaletwin_envs.physics.bucket import load_centroid
+from scaletwin_envs.physics.bucket import capacity_fraction, load_centroid
 from scaletwin_envs.physics.kinematics import solve_pose
 from scaletwin_envs.physics.statics import solve_static
-from scaletwin_envs.policies.loading_cycle import LoadingCyclePolicy
+from scaletwin_envs.policies.loading_cycle import CycleStage, LoadingCyclePolicy, pitch_holding
 from scaletwin_envs.recording.recorder import record_episode
 from scaletwin_envs.recording.recording import read_recording
 from scaletwin_envs.recording.schema import TRUCK_UNITS
 from scaletwin_envs.runtime import qpos_for_pose
+from scaletwin_envs.specs.loader import make_loader
+from scaletwin_envs.specs.soil import make_soil
 
 
 def _balance(info: dict) -> float:
@@ -191,12 +193,13 @@ def _cycle(scale: str, soil: str, **kwargs: object) -> tuple[dict, float, int]:
 
 
 def test_scripted_loading_cycle_fills_a_truck_over_several_passes() -> None:
-    """er12 in gravel: the scripted cycle fills a 3-bucket truck (done at 95 %) in several passes, within its
-    horizon, without overloading it by more than a third of a bucket, with little spill and mass conserved."""
-    info, worst, _ = _cycle("er12", "gravel", truck_payload=3.0)
+    """er12 in gravel: the scripted cycle fills a 2.5-bucket truck (done at 95 %) in several passes, within its
+    horizon, the last pass taking only what the truck still needs (payload within 10 % of the target, where two
+    full buckets and a third would overload it by a third), with little spill and mass conserved."""
+    info, worst, _ = _cycle("er12", "gravel", truck_payload=2.5)
     assert info["success"] and info["sim_error"] is None
     assert info["passes"] >= 3  # one bucket holds at most 1.1 heaped: several passes are needed
-    assert info["payload_error"] < 1.0 / 3.0 / 3.0
+    assert abs(info["payload_error"]) < 0.1
     assert info["spilled_mass"] < 0.05 * info["target_payload"]
     assert worst < 1e-6
     assert info["time"] / gym.make(ENV_ID).unwrapped.loader.froude_time < 600.0
@@ -243,3 +246,76 @@ def test_a_recorded_episode_keeps_the_truck_columns(tmp_path: Path) -> None:
     assert set(back.data["phase"]) <= {*PHASES, "error"}
     dig = record_episode(gym.make(scaletwin_envs.ENV_ID, scale="mini"), lambda _: np.zeros(3), seed=0, max_steps=2)
     assert not set(TRUCK_UNITS) & set(dig.data.columns)
+
+
+def _obs(**values: float) -> np.ndarray:
+    obs = np.zeros(len(OBS_NAMES), dtype=np.float32)
+    for k, v in values.items():
+        obs[OBS_INDEX[k]] = v
+    return obs
+
+
+def test_last_pass_sheds_what_the_truck_does_not_need() -> None:
+    """The policy learns the truck's payload per bucket fill from its dumps; on a later pass a bucket holding more
+    than the truck still needs tips the surplus back over the pile (forward tilt, standing still) and reverses
+    once it holds that much; before any dump it carries the full bucket."""
+    policy = LoadingCyclePolicy()
+    assert policy.needed_fill(0.5) == float("inf")
+    policy.stage = CycleStage.LIFT_OUT
+    policy.act(_obs(fill=1.1, edge_depth=-0.2, bucket_pitch=0.5))
+    assert policy.stage is CycleStage.REVERSE  # first pass: the truck's size is not known yet
+    policy.stage = CycleStage.HAUL
+    policy.act(_obs(leg=1.0, fill=1.0, edge_x_to_truck=0.5, clearance=0.1, bucket_pitch=0.45))
+    assert policy.stage is CycleStage.DUMP
+    policy.act(_obs(leg=1.0, fill=0.02, edge_x_to_truck=0.5, clearance=0.1, truck_fill=0.245, bucket_pitch=-0.9))
+    assert policy.stage is CycleStage.BACK_OUT
+    assert policy.needed_fill(0.8) == pytest.approx(0.2 * 0.98 / 0.245)  # 0.8 of a bucket
+    policy.stage = CycleStage.LIFT_OUT
+    action = policy.act(_obs(fill=1.1, edge_depth=-0.2, bucket_pitch=0.5, truck_fill=0.8))
+    assert policy.stage is CycleStage.SHED
+    action = policy.act(_obs(fill=1.1, edge_depth=-0.3, bucket_pitch=0.5, truck_fill=0.8))
+    assert action[1] < 0.0 and action[0] == pytest.approx(0.0) and action[2] == 0.0  # tip forward, stand still
+    policy.act(_obs(fill=0.81, edge_depth=-0.3, bucket_pitch=0.05, truck_fill=0.8))
+    assert policy.stage is CycleStage.REVERSE
+
+
+@pytest.mark.parametrize("pitch", [-0.8, -0.4, 0.0, 0.2, 0.34])
+def test_pitch_holding_inverts_the_capacity_curve(pitch: float) -> None:
+    assert pitch_holding(capacity_fraction(pitch)) == pytest.approx(pitch, abs=1e-9)
+
+
+def test_slump_keeps_the_volume_and_lays_faces_at_the_repose_slope() -> None:
+    """A vertical face and a pit collapse to slopes of the repose step per cell, the volume kept to round-off;
+    random profiles keep their volume and stay non-negative."""
+    step = 0.01
+    x = np.arange(240)
+    h = np.minimum(0.65, x * step)
+    h[30:75] = 0.02  # a pit dug into the slope, ending in a vertical face 0.6 tall
+    total = h.sum()
+    for _ in range(3):
+        slump(h, step * (1 + 1e-9), 1e-6)
+    assert h.sum() == pytest.approx(total, rel=1e-12)
+    assert np.abs(np.diff(h)).max() <= step * (1 + 1e-6)
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        h = rng.uniform(0.0, 0.6, 240)
+        total = h.sum()
+        slump(h, step, 1e-6)
+        assert h.sum() == pytest.approx(total, rel=1e-12) and h.min() >= 0.0
+
+
+def test_cohesionless_piles_slump_and_cohesive_ones_stand() -> None:
+    assert critical_height(make_soil("gravel")) == 0.0
+    assert critical_height(make_soil("clay_loam")) > 9.0  # m: taller than any preset's pile
+    for soil, slumps in (("gravel", True), ("clay_loam", False)):
+        env = gym.make(ENV_ID, scale="er12", soil=soil)
+        env.reset(seed=0)
+        assert (env.unwrapped._slump_step is not None) == slumps
+
+
+@pytest.mark.parametrize("scale", ["mini", "er12", "wa475"])
+def test_dump_linkage_curls_at_least_as_hard_as_the_machine(scale: str) -> None:
+    """Over the dig workspace the dump-capable variant's curl torque at relief is not below the original's (a
+    wa475 curl in clay loam stalled where it was 10-15 % below)."""
+    spec = make_loader(scale)
+    assert curl_torque_deficit(spec, dump_capable(spec)) <= 1.0 + 1e-9
