@@ -22,12 +22,12 @@ from typing import Any
 import torch
 
 from scaletwin_envs.host import host_line
-from scaling import evaluation as ev
-from scaling.data import STANDARD, dataset_hash, load_or_generate
-from scaling.grid import DEFAULT_GRID, GridSearch, best_config
+from scaling.data.recordings import STANDARD, dataset_hash, load_or_generate
+from scaling.evaluation import metrics as ev
 from scaling.models import DirectPi
-from scaling.pipeline import FFNN_CONFIG, PipelineConfig, ScalingPipeline, model_specs
-from scaling.provenance import code_version, versions
+from scaling.models.grid import DEFAULT_GRID, GridSearch, best_config
+from scaling.runs.pipeline import FFNN_CONFIG, PipelineConfig, ScalingPipeline, model_specs
+from scaling.runs.provenance import code_version, versions
 
 
 def timed(fn: Callable[..., Any], *args: Any, **kwargs: Any) -> tuple[Any, float]:

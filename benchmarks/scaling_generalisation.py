@@ -28,12 +28,18 @@ import pandas as pd
 import torch
 
 from scaletwin_envs.host import host_line
-from scaling.data import dataset_hash
-from scaling.generalisation import PRODUCT_LINE_NET, Candidate, LeaveMachineOut, evaluate, linkage_input_groups
-from scaling.group_choice import POSE_GROUPS
+from scaling.data.product_line import LINKAGE_GROUPS, PI1_LINKAGE, relief_share
+from scaling.data.recordings import dataset_hash
+from scaling.dimensions.group_choice import POSE_GROUPS
+from scaling.evaluation.generalisation import (
+    PRODUCT_LINE_NET,
+    Candidate,
+    LeaveMachineOut,
+    evaluate,
+    linkage_input_groups,
+)
 from scaling.models import FFNN, DeepEnsemble
-from scaling.product_line import LINKAGE_GROUPS, PI1_LINKAGE, relief_share
-from scaling.provenance import code_version, versions
+from scaling.runs.provenance import code_version, versions
 
 
 def main() -> None:
@@ -108,11 +114,12 @@ def report(table: pd.DataFrame, meta: dict) -> str:
         "Source of every target: its nearest training machine by design (direct-Pi (ER12): the ER12). "
         "Intervals: split conformal over the calibration machines (each weighing the same) on a per-row scale, "
         "either learned from the error score's features (cross-fitted over the calibration machines, "
-        "`scaling.conformal.ResidualScale`) or the model's own spread (an ensemble's σ, 1 for a point model); both "
-        "take the pooled quantile (90 % of the rows of an average machine). Served: the interval a checkpoint such "
-        "as `statics-pl` gives (`scaling.conformal.RowInterval`): a scale learned from what a served model knows "
-        "(novelty of its feature row, |ln δ1|, bucket at rest) and a machine-level bound, 90 % of the rows of 90 % "
-        "of the calibration machines (`scaling.conformal.machine_level_quantile`).", "",
+        "`scaling.evaluation.conformal.ResidualScale`) or the model's own spread (an ensemble's σ, 1 for a point "
+        "model); both take the pooled quantile (90 % of the rows of an average machine). Served: the interval a "
+        "checkpoint such as `statics-pl` gives (`scaling.evaluation.conformal.RowInterval`): a scale learned from "
+        "what a served model knows (novelty of its feature row, |ln δ1|, bucket at rest) and a machine-level bound, "
+        "90 % of the rows of 90 % of the calibration machines "
+        "(`scaling.evaluation.conformal.machine_level_quantile`).", "",
         "## Over the drawn test machines", "",
         "| model | dynamic rows: MAPE median / worst [%] | static rows: MAPE median / worst [%] | "
         "peak F21 error median [%] | "
@@ -138,12 +145,12 @@ def report(table: pd.DataFrame, meta: dict) -> str:
     ex = meta["extrapolation"]
     warned = ", ".join(m for m, w in ex["warned"].items() if w) or "none"
     lines += ["", "## Which predictions to distrust", "",
-              "Error score (`scaling.conformal.ErrorScore`): the probability that a row is more than 10 % off, by a "
-              "logistic regression on what is known before the truth (the ensemble's σ of ln δ1, the row's input "
-              "novelty, the size of the correction |ln δ1|, the machine's design distance, whether the bucket is at "
-              "rest), fitted on the calibration machines; it warns above a threshold that keeps the warnings to at "
-              "most 5 % of the rows of 90 % of the calibration machines (`scaling.conformal.machine_level_quantile`). "
-              "AUROC: how well a score "
+              "Error score (`scaling.evaluation.conformal.ErrorScore`): the probability that a row is more than "
+              "10 % off, by a logistic regression on what is known before the truth (the ensemble's σ of ln δ1, "
+              "the row's input novelty, the size of the correction |ln δ1|, the machine's design distance, whether "
+              "the bucket is at rest), fitted on the calibration machines; it warns above a threshold that keeps the "
+              "warnings to at most 5 % of the rows of 90 % of the calibration machines "
+              "(`scaling.evaluation.conformal.machine_level_quantile`). AUROC: how well a score "
               "separates the rows of the test machines more than 10 % off from the rest (0.5 = chance). "
               f"Design distance alone: threshold {ex['threshold']:.2f} (95th percentile of the calibration "
               f"machines); machines it warns on: {warned}.", "",
@@ -165,9 +172,9 @@ def report(table: pd.DataFrame, meta: dict) -> str:
                      f"{shares(ex['row_risk_warn_share'].get(name, {}))} | "
                      f"{shares(ex.get('row_risk_false_alarms', {}).get(name, {}))} | {fmt(a)} | "
                      f"{fmt(ex['auroc_ensemble_spread'].get(name))} |")
-    lines += ["", "Served risk (`scaling.conformal.RowRisk`, what a checkpoint such as `statics-pl` computes per "
-              "row): the same kind of score on what a served model knows, the novelty of its feature row, |ln δ1| "
-              "and whether the bucket is at rest."]
+    lines += ["", "Served risk (`scaling.evaluation.conformal.RowRisk`, what a checkpoint such as `statics-pl` "
+              "computes per row): the same kind of score on what a served model knows, the novelty of its feature "
+              "row, |ln δ1| and whether the bucket is at rest."]
     lines += ["", "## Every test machine", "",
               "| machine | model | source | dynamic MAPE / median [%] | static MAPE / median [%] | peak [%] | "
               "coverage: learned / spread / served | rows > 10 % off |", "|---|---|---|---|---|---|---|---|"]

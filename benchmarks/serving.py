@@ -37,7 +37,7 @@ import torch  # noqa: E402
 
 import zoo  # noqa: E402
 from scaletwin_envs.host import host_line  # noqa: E402
-from scaling.provenance import code_version, versions  # noqa: E402
+from scaling.runs.provenance import code_version, versions  # noqa: E402
 from zoo.build import ENTRIES  # noqa: E402
 from zoo.product_line import NAME as PRODUCT_LINE  # noqa: E402
 from zoo.scaling_kind import check_rows  # noqa: E402

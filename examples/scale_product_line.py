@@ -18,9 +18,9 @@ import numpy as np
 import zoo
 from scaletwin_envs.design_space import DesignSpace
 from scaletwin_envs.specs.loader import make_loader
-from scaling.data import DatasetSpec, generate_frame
-from scaling.generalisation import judged_rows
-from scaling.product_line import add_design_signals, match_rows
+from scaling.data.product_line import add_design_signals, match_rows
+from scaling.data.recordings import DatasetSpec, generate_frame
+from scaling.evaluation.generalisation import judged_rows
 
 
 def main() -> None:

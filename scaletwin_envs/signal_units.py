@@ -21,7 +21,7 @@ SIGNAL_UNITS: dict[str, str] = {
 }
 
 #: Design signals: dimensionless per-row quantities that follow from the machine's drawing and its measured pose
-#: and cylinder force (computed by ``scaling.product_line.add_design_signals``), with ``F21_linkage`` (N), the pin
+#: and cylinder force (computed by ``scaling.data.product_line.add_design_signals``), with ``F21_linkage`` (N), the pin
 #: force of the massless linkage. Not recorded by the simulator; served models of a product line take them.
 DESIGN_SIGNAL_UNITS: dict[str, str] = {"tilt_ratio": "1", "tilt_stroke": "1", "lift_stroke": "1", "fill": "1",
                                        "F21_linkage": "N"}

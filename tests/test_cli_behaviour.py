@@ -62,8 +62,8 @@ def test_light_constants_agree_with_the_packages() -> None:
     from scaletwin.cli import build_parser
     from scaletwin.cli.fit import DATASET_PRESETS, MODEL_NAMES
     from scaletwin_envs.evaluation import DEFAULT_SCALES, DEFAULT_SOILS
-    from scaling.data import PRESETS
-    from scaling.pipeline import DEFAULT_MODELS
+    from scaling.data.recordings import PRESETS
+    from scaling.runs.pipeline import DEFAULT_MODELS
 
     assert tuple(sorted(PRESETS)) == DATASET_PRESETS
     assert tuple(s.name for s in DEFAULT_MODELS) == MODEL_NAMES

@@ -58,8 +58,8 @@ def test_grid_search_on_ray_equals_local_processes() -> None:
     """The same small grid through Ray and in this process: the same table, value by value. Local processes give
     this process's table too (tests/scaling/test_grid.py::test_grid_search_through_local_processes, same grid and
     data); comparing with them here again would cost ~20 s of process start-up on two cores."""
-    from scaling.delta_dataset import DeltaDataset
-    from scaling.grid import GridSearch
+    from scaling.data.delta_dataset import DeltaDataset
+    from scaling.models.grid import GridSearch
     from tests.scaling.test_factors import INPUTS, PI1, synthetic_recordings
 
     rec = synthetic_recordings(episodes=(4, 4), steps=30, seed=1)
@@ -134,7 +134,7 @@ def test_cli_dataset_and_grid_command_on_ray(tmp_path: Path, capsys: pytest.Capt
 
 
 def test_cli_product_line_on_ray_to_a_file_uri(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from scaling.data import load_recordings
+    from scaling.data.recordings import load_recordings
 
     uri = (tmp_path / "line").as_uri()
     argv = ["product-line", uri, "--machines", "1", "--soils", "gravel", "--holds", "0", "--executor", "ray"]

@@ -1,7 +1,8 @@
 """Rebuild the zoo's δ1 checkpoints from scratch through the public scaling pipeline (dataset → fit → evaluate).
 
 :func:`build_zoo` simulates (or reuses) the standard training data and the held-out machines
-(:data:`scaling.data.STANDARD`, :data:`scaling.data.HELD_OUT`), runs one :class:`scaling.pipeline.ScalingPipeline`
+(:data:`scaling.data.recordings.STANDARD`, :data:`scaling.data.recordings.HELD_OUT`), runs one
+:class:`scaling.runs.pipeline.ScalingPipeline`
 with the four served models (:data:`ENTRIES`), and writes one checkpoint per model with an honest card: every metric
 is measured on data the model never trained on (held-out episodes, held-out machines, the miniature). Same data and
 seed → same weights (the pipeline seeds every fit; one torch thread).
@@ -21,15 +22,15 @@ import numpy as np
 import pandas as pd
 
 from scaletwin_envs.signal_units import SIGNAL_UNITS
-from scaling import evaluation as ev
-from scaling.data import HELD_OUT, STANDARD, DataBundle, DatasetSpec, load_or_generate
-from scaling.delta_dataset import DeltaDataset
-from scaling.fitted import STATIC_STEPS, model_groups
-from scaling.group_choice import EQ10, EQ23, POSE
+from scaling.data.delta_dataset import DeltaDataset
+from scaling.data.recordings import HELD_OUT, STANDARD, DataBundle, DatasetSpec, load_or_generate
+from scaling.dimensions.group_choice import EQ10, EQ23, POSE
+from scaling.evaluation import metrics as ev
 from scaling.models import DeepEnsemble, DeltaModel, GRUModel, r2_score
-from scaling.pipeline import ModelSpec, PipelineConfig, PipelineResult, Prepared, ScalingPipeline, model_specs
-from scaling.provenance import code_version, machine, to_jsonable
-from scaling.provenance import versions as scaling_versions
+from scaling.models.fitted import STATIC_STEPS, model_groups
+from scaling.runs.pipeline import ModelSpec, PipelineConfig, PipelineResult, Prepared, ScalingPipeline, model_specs
+from scaling.runs.provenance import code_version, machine, to_jsonable
+from scaling.runs.provenance import versions as scaling_versions
 from zoo.registry import REGISTRY_PATH, ZOO_ROOT, register
 from zoo.scaling_kind import save_scaling_model
 from zoo.serving.model import served_variables
@@ -249,8 +250,8 @@ def metric_fields(name: str, model: DeltaModel, result: PipelineResult, check: p
         "mini": {"mean_abs_pct_error": mini.mean_abs(name), "pct_error": mini.pct_error(name),
                  "loads_kg": mini.loads_kg, "direct_pi_mean_abs_pct_error": mini.mean_abs("direct-pi"),
                  "hold_steps": STATIC_STEPS if isinstance(model, GRUModel) else None,
-                 "note": "miniature loader at static equilibrium (scaling.validation.static_rows), source = the "
-                         "card's source row; signed errors 100·(predicted − actual)/actual"},
+                 "note": "miniature loader at static equilibrium (scaling.evaluation.miniature.static_rows), "
+                         "source = the card's source row; signed errors 100·(predicted − actual)/actual"},
         "check_set": {"file": "check.csv", "rows": len(check_pairs), "r2": r2_score(check_pairs.delta, pred),
                       "f21_mape_pct": float(np.mean(ev.ape(check_pairs.recover(pred), f21))),
                       "machines": sorted(check["machine"].astype(str).unique())},

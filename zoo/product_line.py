@@ -1,11 +1,11 @@
 """The product-line δ1 checkpoint ``statics-pl``: F21 of a machine of *another design*, from any calibrated one.
 
 The paper's checkpoints (:mod:`zoo.build`) learnt δ1 on the ER12 and the WA475, one layout at two sizes. This one is
-trained across a sampled product line (:class:`scaling.generalisation.LeaveMachineOut`: the ER12 and 24 drawn
+trained across a sampled product line (:class:`scaling.evaluation.generalisation.LeaveMachineOut`: the ER12 and 24 drawn
 machines that differ in linkage, hydraulics, masses, bucket and traction), on matched (source, target) row pairs,
 so any calibrated machine of the line can be the source. Its output group is π1 = F21 / F21_linkage (F21 over the
 pin force of the massless linkage at the measured tilt-cylinder force and pose), its inputs the Eq. (10) groups,
-the pose and the linkage's design signals (:func:`scaling.product_line.add_design_signals`), source and target
+the pose and the linkage's design signals (:func:`scaling.data.product_line.add_design_signals`), source and target
 values both.
 
 Its card says what the leave-machine-out proof measured: per held-out machine (drawn with another seed, never
@@ -13,13 +13,13 @@ used in training or calibration, plus the ``mini`` and ``wa475`` presets) the F2
 the peak error and the coverage of the card's interval. The interval is calibrated on 16 calibration machines
 (held out of training) for "a new machine of the line", not for rows of machines the model saw: per row, ln δ1 ±
 q·s(x) with a width s learnt from what the served model knows of the row and q covering 90 % of the rows of 90 % of
-the calibration machines (:class:`scaling.conformal.RowInterval`); row by row (no novelty query) the pooled
+the calibration machines (:class:`scaling.evaluation.conformal.RowInterval`); row by row (no novelty query) the pooled
 group-weighted residual quantiles. It also carries an error score served per row
-(:class:`scaling.conformal.RowRisk`, ``ScaledForce.risk``): its warnings replace the training-range rule, which
-fired on a quarter of a new machine's rows at 0.5 % error.
+(:class:`scaling.evaluation.conformal.RowRisk`, ``ScaledForce.risk``): its warnings replace the training-range rule,
+which fired on a quarter of a new machine's rows at 0.5 % error.
 
 How to use it: compute the design signals of both machines from their specs, pair every target row with its
-matched source row (:func:`scaling.product_line.match_rows`: same kind, nearest in pose and fill) and pass the
+matched source row (:func:`scaling.data.product_line.match_rows`: same kind, nearest in pose and fill) and pass the
 paired rows (``model.scale_force(source.iloc[idx], target)``); see ``examples/scale_product_line.py``.
 """
 
@@ -34,11 +34,10 @@ import numpy as np
 import pandas as pd
 
 from scaletwin_envs.signal_units import QUANTITY_UNITS
-from scaling.conformal import group_weighted_quantile
-from scaling.data import dataset_hash
-from scaling.evaluation import at_rest
-from scaling.fitted import model_groups
-from scaling.generalisation import (
+from scaling.data.product_line import PI1_LINKAGE
+from scaling.data.recordings import dataset_hash
+from scaling.evaluation.conformal import group_weighted_quantile
+from scaling.evaluation.generalisation import (
     PRODUCT_LINE_NET,
     Candidate,
     GeneralisationResult,
@@ -48,10 +47,11 @@ from scaling.generalisation import (
     judged_rows,
     linkage_input_groups,
 )
+from scaling.evaluation.metrics import at_rest
 from scaling.models import FFNN
-from scaling.product_line import PI1_LINKAGE
-from scaling.provenance import code_version, machine, to_jsonable
-from scaling.provenance import versions as scaling_versions
+from scaling.models.fitted import model_groups
+from scaling.runs.provenance import code_version, machine, to_jsonable
+from scaling.runs.provenance import versions as scaling_versions
 from zoo.build import COVERAGES, RANGE_MARGIN
 from zoo.registry import REGISTRY_PATH, ZOO_ROOT, register
 from zoo.scaling_kind import save_scaling_model
@@ -62,10 +62,10 @@ SUMMARY = ("δ1 FFNN across a sampled product line (linkage, hydraulics, masses,
            "F21/F21_linkage, matched source rows: F21 of a machine of another design from any calibrated one; "
            "interval calibrated on held-out machines.")
 DELTA_CONVENTION = ("source = a calibrated machine of the product line, one matched row per target row (same kind, "
-                    "nearest in boom angle, bucket pitch and fill: scaling.product_line.match_rows); target = the "
+                    "nearest in boom angle, bucket pitch and fill: scaling.data.product_line.match_rows); target = the "
                     "machine to predict; δ1 = π1(source)/π1(target), π1 = F21/F21_linkage, and F21_target = "
                     "F21_linkage_target · π1(source) / δ1. F21_linkage = tilt_ratio · |Pf_tilt| follows from the "
-                    "target's drawing, pose and tilt-cylinder force (scaling.product_line.add_design_signals).")
+                    "target's drawing, pose and tilt-cylinder force (scaling.data.product_line.add_design_signals).")
 
 
 @dataclass(frozen=True)
@@ -171,12 +171,12 @@ def card_fields(model: FFNN, result: GeneralisationResult, reference: pd.Series,
                      "log_delta_residual_quantiles": quantiles,
                      "calibration": f"ln δ1 residuals on the {len(split.calibration)} calibration machines "
                                     "(held out of training). learned_scale (batch path, risk computed): "
-                                    "ln δ1 ± q·s(x), s learnt from the served features (scaling.conformal.RowInterval, "
-                                    "cross-fitted over the calibration machines), q covering the coverage share of "
-                                    "the rows of machine_share of the calibration machines "
-                                    "(scaling.conformal.machine_level_quantile). log_delta_residual_quantiles (row "
-                                    "by row, or risk=False): every machine weighing the same, pooled "
-                                    "(scaling.conformal.group_weighted_quantile)",
+                                    "ln δ1 ± q·s(x), s learnt from the served features "
+                                    "(scaling.evaluation.conformal.RowInterval, cross-fitted over the calibration "
+                                    "machines), q covering the coverage share of the rows of machine_share of the "
+                                    "calibration machines (scaling.evaluation.conformal.machine_level_quantile). "
+                                    "log_delta_residual_quantiles (row by row, or risk=False): every machine "
+                                    "weighing the same, pooled (scaling.evaluation.conformal.group_weighted_quantile)",
                      "description": "δ1·exp(±q·s) or δ1·exp(q) for the residual quantiles q, mapped to F21 "
                                     "(bounds swap)"},
         "training_range": {"feature": "g_n = s_n·[asinh(π_n^s/2ε_n) − asinh(π_n^t/2ε_n)], then s_n·asinh(π_n^s/2ε_n) "
@@ -215,7 +215,7 @@ def card_fields(model: FFNN, result: GeneralisationResult, reference: pd.Series,
             "note": "machines never trained on nor used for calibration (drawn with another seed, plus the mini and "
                     "wa475 presets); rows after start-up settling with F21 > 5 % of the machine's peak; dynamic = "
                     "dig cycles and moves, static = bucket held still; source = the nearest training machine by "
-                    "design, matched rows (scaling.generalisation)",
+                    "design, matched rows (scaling.evaluation.generalisation)",
             "check_set": {"file": "check.csv", "rows": len(check), "machine": cfg.check},
         },
     }

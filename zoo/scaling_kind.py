@@ -13,11 +13,13 @@ Card fields (besides the common ones, :mod:`zoo.checkpoint`):
 ``source``            the calibrated reference row the model was trained against (SI), the default source
 ``inputs``            target quantities with their SI units
 ``interval``          method (``residual-quantiles``, ``ensemble`` or ``learned-scale``), coverage, quantiles of ln δ1
-                      residuals; ``learned-scale`` adds the per-row interval (:class:`scaling.conformal.RowInterval`)
+                      residuals; ``learned-scale`` adds the per-row interval
+                      (:class:`scaling.evaluation.conformal.RowInterval`)
 ``training_range``    per input group, min/max of the distortion feature g on the training pairs
 ``training``          machines, soils, dataset spec and hashes, pipeline config, seed, code version, fit time
 ``metrics``           held-out episodes (R² of δ1), held-out machines, miniature errors, the check set
-``risk``              (optional) the error score served per row (:class:`scaling.conformal.RowRisk`), its novelty rows
+``risk``              (optional) the error score served per row (:class:`scaling.evaluation.conformal.RowRisk`), its
+novelty rows
                       in ``risk.safetensors``
 """
 
@@ -33,11 +35,11 @@ import numpy as np
 import pandas as pd
 from safetensors.numpy import load_file, save_file
 
-from scaling.conformal import RowRisk
-from scaling.delta_dataset import DeltaDataset
+from scaling.data.delta_dataset import DeltaDataset
+from scaling.evaluation.conformal import RowRisk
 from scaling.models import DeltaModel, load_model
 from scaling.models.base import CONFIG_FILE, WEIGHTS_FILE
-from scaling.provenance import to_jsonable
+from scaling.runs.provenance import to_jsonable
 from zoo.checkpoint import CARD_NAME, finish_checkpoint, prepare_directory
 from zoo.errors import CheckpointError
 from zoo.loading import load, register_builder
@@ -61,7 +63,7 @@ def save_scaling_model(model: DeltaModel, directory: str | Path, card_fields: Ma
         card_fields: the card's content (:data:`CARD_KEYS` at least; see the module docstring).
         check_rows: a small held-out table (SI; ``episode``, ``t`` and the signals) stored as ``check.csv`` with
             ``name [unit]`` headers, on which the card's ``metrics.check_set`` was measured.
-        risk: an error score the served model computes per row (:class:`~scaling.conformal.RowRisk`): its
+        risk: an error score the served model computes per row (:class:`~scaling.evaluation.conformal.RowRisk`): its
             parameters go on the card (``risk``), its novelty rows into ``risk.safetensors``.
     """
     missing = [k for k in CARD_KEYS if k not in card_fields]

@@ -51,16 +51,24 @@ def _main(argv: Sequence[str] | None) -> int:
     except SystemExit:  # --help, --version, usage errors: flush here, where a closed pipe can still be handled
         sys.stdout.flush()
         raise
+    name = command_name(args)
     try:
         code = int(args.func(args) or 0)
     except (CommandError, ValueError, FileNotFoundError) as exc:
         code = 2
-        print(f"scaletwin {args.command}: error: {exc}", file=sys.stderr)
+        print(f"scaletwin {name}: error: {exc}", file=sys.stderr)
     except KeyboardInterrupt:
         code = 130
-        print(f"scaletwin {args.command}: interrupted", file=sys.stderr)
+        print(f"scaletwin {name}: interrupted", file=sys.stderr)
     sys.stdout.flush()  # a closed pipe raises here, not in the interpreter's shutdown
     return code
+
+
+def command_name(args: argparse.Namespace) -> str:
+    """The command as typed, for messages: ``"dataset"``, or with its subcommand (``"zoo build"``; a command with
+    subcommands stores them as ``<command>_command``, as argparse's usage lines name them)."""
+    sub = getattr(args, f"{args.command}_command", None)
+    return f"{args.command} {sub}" if sub else str(args.command)
 
 
 def _stdout_to_devnull() -> None:

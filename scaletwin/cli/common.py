@@ -4,12 +4,16 @@ from __future__ import annotations
 
 import argparse
 import json
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from scaletwin.cli import CommandError
 
 EXECUTORS = ("local", "serial", "ray")
+#: Scaling laws of ``--law`` (:func:`scaletwin_envs.specs.loader.make_loader`); the first is the default, the only
+#: one a preset machine takes.
+LAWS = ("product_line", "froude")
 
 
 def scale_arg(text: str) -> float | str:
@@ -20,11 +24,35 @@ def scale_arg(text: str) -> float | str:
         return text
 
 
+def add_law_arg(p: argparse.ArgumentParser) -> None:
+    """``--law {product_line,froude}``, checked against the scales with :func:`check_law`."""
+    p.add_argument("--law", default=LAWS[0], choices=LAWS,
+                   help=f"scaling law for length-ratio scales; presets are fixed machines (default {LAWS[0]})")
+
+
+def check_law(scales: Sequence[float | str], law: str, option: str) -> None:
+    """Refuse ``--law`` other than the default with a preset machine, as the env would, but before any simulation.
+
+    Args:
+        scales: the scales given (presets as names, length ratios as floats).
+        law: the ``--law`` value.
+        option: the scales' option (``--scale``, ``--scales``), named in the message.
+
+    Raises:
+        CommandError: a non-default law with a scale that is not a length ratio.
+    """
+    fixed = [str(s) for s in scales if not isinstance(s, int | float)]
+    if law != LAWS[0] and fixed:
+        raise CommandError(f"--law {law} applies to length ratios only, and {option} {' '.join(fixed)} "
+                           f"{'is a preset' if len(fixed) == 1 else 'are presets'} (fixed machines): drop --law or "
+                           f"give length ratios vs the ER12 (e.g. {option} 0.3 1.5)")
+
+
 def add_machine_args(p: argparse.ArgumentParser) -> None:
+    """``--scale``, ``--law``, ``--soil`` and ``--seed`` of one machine (check ``--law`` with :func:`check_law`)."""
     p.add_argument("--scale", type=scale_arg, default="er12",
                    help="preset (mini, er12, wa475) or length ratio vs the ER12 in [0.05, 3] (default er12)")
-    p.add_argument("--law", default="product_line", choices=("product_line", "froude"),
-                   help="scaling law for float scales (default product_line)")
+    add_law_arg(p)
     p.add_argument("--soil", default="gravel", help="gravel, sand, sandy_loam or clay_loam (default gravel)")
     p.add_argument("--seed", type=int, default=0, help="reset seed (default 0)")
 
@@ -61,10 +89,12 @@ def executor_arg(workers: str | int | None) -> str | int | None:
         raise CommandError(f"--workers must be an integer or 'serial', got {workers!r}") from exc
 
 
-def executor_from_args(args: argparse.Namespace, workers: str | int | None = None) -> Any:
+def executor_from_args(args: argparse.Namespace, workers: str | int | None = None,
+                       default: str | int | None = None) -> Any:
     """The executor spec of the options of :func:`add_executor_args` plus the command's ``--workers`` value:
     ``None``/an int/``"serial"`` for local runs (see :func:`scaletwin_envs.parallel.make_executor`), or a
-    :class:`~scaletwin_envs.parallel.RayExecutor`.
+    :class:`~scaletwin_envs.parallel.RayExecutor`. ``default`` is the local spec when neither ``--workers`` nor
+    another executor is given (``None``: every core).
 
     Raises:
         CommandError: contradictory options, or Ray asked for but not installed.
@@ -77,7 +107,8 @@ def executor_from_args(args: argparse.Namespace, workers: str | int | None = Non
             raise CommandError(f"{' and '.join(given)} {'apply' if len(given) > 1 else 'applies'} to --executor ray "
                                "only")
     if kind == "local":
-        return executor_arg(workers)
+        spec = executor_arg(workers)
+        return default if spec is None else spec
     if workers is not None:
         raise CommandError(f"--workers applies to local processes only, not --executor {kind}")
     if kind == "serial":

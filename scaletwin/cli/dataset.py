@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 
 from scaletwin.cli import CommandError
-from scaletwin.cli.common import add_executor_args, executor_from_args, scale_arg
+from scaletwin.cli.common import add_executor_args, add_law_arg, check_law, executor_from_args, scale_arg
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -15,8 +15,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                                "ep-<hash>.parquet per episode, plus manifest.json)")
     p.add_argument("--scales", nargs="+", type=scale_arg, default=["mini"],
                    help="presets or length ratios vs the ER12 (default mini)")
-    p.add_argument("--law", default="product_line", choices=("product_line", "froude"),
-                   help="scaling law for float scales (default product_line)")
+    add_law_arg(p)
     p.add_argument("--soils", nargs="+", default=["gravel"], help="soil names (default gravel)")
     p.add_argument("--pile-distances", nargs="+", type=float, default=[0.5],
                    help="edge-to-pile distances at reset, boom lengths (default 0.5)")
@@ -38,6 +37,7 @@ def run(args: argparse.Namespace) -> int:
 
     if args.episodes is not None and args.episodes < 1:
         raise CommandError(f"--episodes must be >= 1, got {args.episodes}")
+    check_law(args.scales, args.law, "--scales")
     executor = executor_from_args(args, args.workers)
     seeds = tuple(range(args.episodes)) if args.episodes else tuple(args.seeds or (0,))
     spec = SweepSpec(scales=tuple(args.scales), soils=tuple(args.soils), pile_distances=tuple(args.pile_distances),

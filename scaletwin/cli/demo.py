@@ -21,7 +21,7 @@ from scaletwin.cli.common import add_executor_args, executor_from_args
 if TYPE_CHECKING:
     from rich.console import Console
 
-    from scaling.pipeline import PipelineResult
+    from scaling.runs.pipeline import PipelineResult
 
 DEFAULT_OUT = Path("scaletwin-demo")
 #: Names of the demo models: the FFNN of a full fit (3×64) and the baseline.
@@ -32,11 +32,11 @@ def __getattr__(name: str) -> Any:
     """``DEMO`` (the data set spec) and ``DEMO_MODELS`` (the model specs), imported on first use: ``scaletwin
     --help`` must not import :mod:`scaling` (torch, MuJoCo). Assigning either attribute (tests) overrides it."""
     if name == "DEMO":
-        from scaling.data import DEMO
+        from scaling.data.recordings import DEMO
 
         return DEMO
     if name == "DEMO_MODELS":
-        from scaling.pipeline import model_specs
+        from scaling.runs.pipeline import model_specs
 
         return model_specs(list(DEMO_MODEL_NAMES))
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
@@ -50,7 +50,7 @@ def _setting(name: str) -> Any:
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("demo", help="simulate, fit FFNN and direct-Pi, scale F21 to the miniature (about 1.5 min)")
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"output directory (default ./{DEFAULT_OUT})")
-    p.add_argument("--workers", default="serial",
+    p.add_argument("--workers", default=None,
                    help="local processes for the simulations: an integer, or 'serial' (default; the demo is small)")
     add_executor_args(p)
     p.add_argument("--seed", type=int, default=0, help="seed of the split, the reference draw and the fit")
@@ -58,11 +58,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def fit_demo(out: Path, console: Console, workers: str | int = "serial", seed: int = 0,
+def fit_demo(out: Path, console: Console, workers: Any = "serial", seed: int = 0,
              rerun: bool = True, data_dir: Path | None = None) -> PipelineResult:
-    """Simulate the demo data into ``data_dir`` (default ``out/data``) and fit the demo models into ``out``."""
-    from scaling.data import DataBundle, load_or_generate
-    from scaling.pipeline import PipelineConfig, ScalingPipeline
+    """Simulate the demo data into ``data_dir`` (default ``out/data``) and fit the demo models into ``out``.
+
+    ``workers`` is where the simulations run: anything :func:`scaletwin_envs.parallel.make_executor` takes (an
+    integer, ``"serial"``, ``None`` for every core, or an executor such as a ``RayExecutor``). The fit itself runs
+    in this process.
+    """
+    from scaling.data.recordings import DataBundle, load_or_generate
+    from scaling.runs.pipeline import PipelineConfig, ScalingPipeline
 
     demo = _setting("DEMO")
     data_dir = data_dir or out / "data"
@@ -78,19 +83,18 @@ def fit_demo(out: Path, console: Console, workers: str | int = "serial", seed: i
 
 
 def run(args: argparse.Namespace) -> int:
-    import numpy as np
+    executor = executor_from_args(args, args.workers, default="serial")  # before the heavy imports: bad options
+    import numpy as np  # fail at once
     from rich.console import Console
 
     from scaletwin.cli.validate_mini import mini_table
-    from scaling.plots import plot_predicted_vs_actual
-    from scaling.provenance import write_json
+    from scaling.runs.plots import plot_mini_validation, plot_predicted_vs_actual
+    from scaling.runs.provenance import write_json
 
     console = Console()
     start = time.perf_counter()
     out: Path = args.out
-    executor = executor_from_args(args, None if args.executor not in (None, "local") else args.workers)
-    result = fit_demo(out / "run", console, executor, args.seed, not args.no_rerun,
-                      data_dir=out / "data")
+    result = fit_demo(out / "run", console, executor, args.seed, not args.no_rerun, data_dir=out / "data")
     choice = result.choices["eq10"]
     console.print(f"      groups: π1 = {choice.output.expression()}; "
                   + ", ".join(g.expression() for g in choice.inputs))
@@ -108,7 +112,7 @@ def run(args: argparse.Namespace) -> int:
                   " the direct-Pi error depends on how far the reference row is from the miniature's state, see "
                   "`scaletwin reproduce`")
     write_json(out / "mini.json", mini.to_json())
-    mini.figure(out / "mini.png")
+    plot_mini_validation(mini, out / "mini.png")
     test, kinds = result.test_sets["eq10"], result.test_kinds["eq10"]
     dig = test.subset(np.flatnonzero(kinds == "dig")) if np.any(kinds == "dig") else test
     plot_predicted_vs_actual(dig.delta, result.models["ffnn"].predict(dig), out / "pred_vs_actual_ffnn.png",

@@ -93,6 +93,7 @@ def print_table(summary: Any, console: Console) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    executor = executor_from_args(args, args.workers)  # before the heavy imports: bad options fail at once
     from rich.console import Console
 
     from scaletwin_envs.evaluation import (
@@ -110,8 +111,7 @@ def run(args: argparse.Namespace) -> int:
     policies = {name: resolve_policy(name, args.model) for name in _split(args.policies)}
     scales = list(DEFAULT_SCALES) if args.scales is None else [scale_arg(s) for s in _split(args.scales)]
     soils = list(DEFAULT_SOILS) if args.soils is None else _split(args.soils)
-    episodes = evaluate_policies(policies, scales, soils, args.episodes, args.seed,
-                                 executor=executor_from_args(args, args.workers))
+    episodes = evaluate_policies(policies, scales, soils, args.episodes, args.seed, executor=executor)
     summary = summarize(episodes)
     console = Console() if sys.stdout.isatty() else Console(width=200)  # pipes and logs get the whole table
     print_table(summary, console)

@@ -1,10 +1,10 @@
 """``scaletwin fit``: recordings → group sets → δ1 models → a model directory with metrics and provenance.
 
-``--data DIR`` is a folder of Parquet recordings (``scaletwin_envs.recording`` sweeps, or ``scaling.data``
+``--data DIR`` is a folder of Parquet recordings (``scaletwin_envs.recording`` sweeps, or ``scaling.data.recordings``
 folders), used as it is. Without it, the ``--dataset`` preset is simulated into ``OUT/data/train`` (resumable).
 ``--held-out DIR`` holds machines never trained on (default: the held-out preset, λ = 0.5 and 2.5, simulated into
 ``OUT/data/held_out``). The output directory layout is
-described in :mod:`scaling.run_io`; every fit is logged to ``models/<name>/fit.rrd`` (rerun).
+described in :mod:`scaling.runs.run_io`; every fit is logged to ``models/<name>/fit.rrd`` (rerun).
 """
 
 from __future__ import annotations
@@ -23,7 +23,8 @@ if TYPE_CHECKING:
 __all__ = ["register", "run"]
 
 DEFAULT_OUT = Path("scaletwin-fit")
-#: ``scaling.data.PRESETS`` and ``scaling.pipeline.DEFAULT_MODELS`` by name, spelt out so that registering the
+#: ``scaling.data.recordings.PRESETS`` and ``scaling.runs.pipeline.DEFAULT_MODELS`` by name, spelt out so that
+#: registering the
 #: command (``scaletwin --help``) imports neither (torch, MuJoCo); tests/test_cli_behaviour.py checks they agree.
 DATASET_PRESETS = ("demo", "held_out", "small", "standard", "tiny")
 MODEL_NAMES = ("ffnn", "ffnn-pose", "gru-eq10", "gru-eq23", "power-law", "direct-pi", "deep-ensemble")
@@ -55,7 +56,7 @@ def _data(given: str | None, default: Path, preset: str, executor: Any) -> pd.Da
     """Recordings of ``given`` (a folder or filesystem URI) as they are, or of ``preset`` simulated into ``default``
     (resumable) through ``executor`` (see :func:`scaletwin.cli.common.executor_from_args`)."""
     from scaletwin_envs.recording.atomic import exists
-    from scaling.data import PRESETS, load_or_generate, load_recordings
+    from scaling.data.recordings import PRESETS, load_or_generate, load_recordings
 
     if given is None:
         return load_or_generate(default, PRESETS[preset], executor)
@@ -69,8 +70,8 @@ def run(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.table import Table
 
-    from scaling.data import DataBundle
-    from scaling.pipeline import PipelineConfig, ScalingPipeline, model_specs
+    from scaling.data.recordings import DataBundle
+    from scaling.runs.pipeline import PipelineConfig, ScalingPipeline, model_specs
 
     console = Console()
     out: Path = args.out

@@ -15,15 +15,18 @@ Every ``name [unit]`` header of both files is checked, whether or not the model 
 scaletwin knows (``F21``, ``x_b``, ``time``...) whose unit pint cannot parse or whose dimension is wrong (``F21
 [furlongs]``) is an error naming the file and the column; a column of another name whose unit pint cannot parse
 is reported as a warning (the model never reads it, and logs carry such columns, e.g. ``operator [initials]``).
-A file that cannot be read (truncated Parquet, binary CSV...) is an error naming the file.
+A file that cannot be read (truncated Parquet, binary CSV...), that names a column twice or has no rows is an error
+naming the file, and so is every problem with the values the model reads (missing, non-numeric, NaN, inf): one line,
+exit code 2. tests/test_bad_files.py tries mangled files.
 """
 
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 import warnings
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING
 
 from scaletwin.cli import CommandError
@@ -58,7 +61,7 @@ def unit_problems(headers: Sequence[object]) -> tuple[list[str], list[str]]:
 
     from scaletwin_envs.recording.importer import to_si
     from scaletwin_envs.recording.schema import NON_QUANTITY, known_units
-    from zoo.serving.inputs import split_header
+    from zoo.serving.inputs import check_unit_expression, split_header
 
     known = known_units()
     errors: list[str] = []
@@ -69,9 +72,10 @@ def unit_problems(headers: Sequence[object]) -> tuple[list[str], list[str]]:
         if unit is None or si == NON_QUANTITY:
             continue
         try:  # to itself for an unknown name: whether pint parses the unit at all
+            check_unit_expression(unit)  # first: pint would hang on some (``10**10**10``)
             to_si(np.ones(1), unit, si if si is not None else unit)
         except Exception as exc:  # pint raises many types for a bad unit (undefined, syntax, even assertions)
-            why = str(exc) or type(exc).__name__
+            why = " ".join(str(exc).split()) or type(exc).__name__
             if si is not None:
                 errors.append(f"column {str(header)!r}: unit {unit!r} is not a unit of {name} (SI {si!r}): {why}")
             else:
@@ -82,15 +86,20 @@ def unit_problems(headers: Sequence[object]) -> tuple[list[str], list[str]]:
 
 def read_input(path: str, role: str) -> pd.DataFrame:
     """``path`` read with :func:`zoo.serving.read_table`, every failure and every unit error naming the file
-    (``role``: "target" or "source"); unit warnings are printed to stderr."""
+    (``role``: "target" or "source"); unit warnings are printed to stderr.
+
+    Raises:
+        FileNotFoundError: no such file.
+        CommandError: the file cannot be read, names a column twice, has no rows, or a unit error.
+    """
     from zoo.serving import InputError, read_table
 
     try:
         frame = read_table(path)
-    except (FileNotFoundError, InputError):  # their messages name the file
-        raise
-    except Exception as exc:  # pyarrow, pandas, codecs: whatever a damaged file raises
-        raise CommandError(f"{role} {path}: cannot read the file ({type(exc).__name__}: {exc})") from exc
+    except InputError as exc:  # its message starts with the path
+        raise CommandError(f"{role} {exc}") from exc
+    if frame.empty:
+        raise CommandError(f"{role} {path}: no rows")
     errors, notes = unit_problems(list(frame.columns))
     if errors:
         raise CommandError(f"{role} {path}: " + "; ".join(errors))
@@ -99,16 +108,29 @@ def read_input(path: str, role: str) -> pd.DataFrame:
     return frame
 
 
-def matched_source(source: pd.DataFrame, target: pd.DataFrame) -> pd.DataFrame:
-    """One source row per target row for a product-line model (:func:`scaling.product_line.match_rows`): nearest in
+def naming_files(exc: Exception, files: Mapping[str, str | None]) -> CommandError:
+    """A model's :class:`~zoo.serving.InputError` as a one-line :class:`CommandError` naming the file: a message
+    that starts with the role ("target", "source") gets that file's path after it (``files``: role → path, ``None``
+    for the model's own reference row)."""
+    text = " ".join(str(exc).split())
+    role = re.match(r"(target|source)\b", text)
+    if role and files.get(role[1]):
+        text = f"{role[1]} {files[role[1]]}{text[role.end():]}"
+    return CommandError(text)
+
+
+def matched_source(source: pd.DataFrame, target: pd.DataFrame,
+                   files: Mapping[str, str | None] | None = None) -> pd.DataFrame:
+    """One source row per target row for a product-line model (:func:`scaling.data.product_line.match_rows`): nearest in
     boom angle and bucket pitch (and fill, where both files have it), of the same ``kind`` where both have one.
 
     Raises:
-        CommandError: a file lacks the boom angle or the bucket pitch.
+        CommandError: a file lacks the boom angle or the bucket pitch, or their values are unusable (``files``:
+            role → path, for the message).
     """
     import pandas as pd
 
-    from scaling.product_line import MATCH_KEYS, MATCH_WEIGHTS, match_rows
+    from scaling.data.product_line import MATCH_KEYS, MATCH_WEIGHTS, match_rows
     from zoo.serving import InputError
     from zoo.serving.inputs import split_header, to_matrix
 
@@ -121,7 +143,7 @@ def matched_source(source: pd.DataFrame, target: pd.DataFrame) -> pd.DataFrame:
         frames = [pd.DataFrame(to_matrix(f, keys, role), columns=keys) for f, role in ((source, "source"),
                                                                                       (target, "target"))]
     except InputError as exc:
-        raise CommandError(str(exc)) from exc
+        raise naming_files(exc, files or {}) from exc
     if "kind" in source.columns and "kind" in target.columns:  # dig rows to dig rows, holds to holds
         for frame, raw in zip(frames, (source, target), strict=True):
             frame["kind"] = raw["kind"].astype(str).to_numpy()
@@ -139,6 +161,7 @@ def run(args: argparse.Namespace) -> int:
 
     target = read_input(args.target, "target")
     source = read_input(args.source, "source") if args.source else None
+    files = {"target": args.target, "source": args.source}
     try:
         model = zoo.load(args.model)
     except zoo.CheckpointError as exc:
@@ -151,12 +174,12 @@ def run(args: argparse.Namespace) -> int:
                 raise CommandError(f"--source-row {args.source_row} is outside the {len(source)} source rows")
             source = source.iloc[[args.source_row]]
         elif model.include_source and len(source) != len(target):
-            source = matched_source(source, target)
+            source = matched_source(source, target, files)
         elif len(source) not in (1, len(target)):
             try:
                 row = model.nearest_source_row(source)
             except InputError as exc:
-                raise CommandError(str(exc)) from exc
+                raise naming_files(exc, files) from exc
             print(f"scaletwin predict: source row {row} of {len(source)} (the closest to the model's calibrated "
                   "reference row; choose another with --source-row)", file=sys.stderr)
             source = source.iloc[[row]]
@@ -167,7 +190,7 @@ def run(args: argparse.Namespace) -> int:
             result = model.scale_force(source, target, coverage=args.coverage, hold=args.hold,
                                         threads=args.threads)
         except InputError as exc:
-            raise CommandError(str(exc)) from exc
+            raise naming_files(exc, files) from exc
     for w in caught:
         print(f"scaletwin predict: warning: {w.message}", file=sys.stderr)
     out = result.to_frame()

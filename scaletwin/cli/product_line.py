@@ -32,9 +32,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from scaletwin_envs.recording.atomic import join, make_dirs, write_text_atomic
-    from scaling.data import SOILS, generate_recordings
-    from scaling.product_line import ProductLine
-    from scaling.provenance import code_version
+    from scaling.data.product_line import ProductLine
+    from scaling.data.recordings import SOILS, generate_recordings
+    from scaling.runs.provenance import code_version
 
     if args.machines < 1:
         raise CommandError(f"--machines must be >= 1, got {args.machines}")
@@ -61,6 +61,6 @@ def run(args: argparse.Namespace) -> int:
     spec = line.dataset_spec()
     print(f"recording {len(spec.tasks())} episodes into {args.out} (resumable: finished episodes are kept)")
     generate_recordings(spec, args.out, executor=DEFAULT_WORKERS if executor is None else executor, progress=True)
-    print(f"{args.out}: done; load it with scaling.data.load_recordings and add the design signals with "
-          "scaling.product_line.add_design_signals(frame, ProductLine(...).specs())")
+    print(f"{args.out}: done; load it with scaling.data.recordings.load_recordings and add the design signals with "
+          "scaling.data.product_line.add_design_signals(frame, ProductLine(...).specs())")
     return 0

@@ -31,8 +31,8 @@ def run(args: argparse.Namespace) -> int:
     executor = executor_from_args(args, args.workers)  # before the heavy imports: bad options fail at once
     from rich.console import Console
 
-    from scaling.report import headline_rows
-    from scaling.reproduce import QUICK, ReproduceConfig, reproduce
+    from scaling.runs.report import headline_rows
+    from scaling.runs.reproduce import QUICK, ReproduceConfig, reproduce
 
     console = Console()
     config = QUICK if args.quick else ReproduceConfig()

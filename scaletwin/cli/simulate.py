@@ -12,7 +12,7 @@ import contextlib
 from collections.abc import Callable, Iterator
 from typing import TYPE_CHECKING, Any
 
-from scaletwin.cli.common import add_machine_args, write_json
+from scaletwin.cli.common import add_machine_args, check_law, write_json
 
 if TYPE_CHECKING:
     import gymnasium as gym
@@ -82,6 +82,7 @@ def success_line(kpis: dict[str, Any], success_fill: float, time_limit: float) -
 
 
 def run(args: argparse.Namespace) -> int:
+    check_law([args.scale], args.law, "--scale")
     import gymnasium as gym
     from rich.console import Console
     from rich.table import Table

@@ -1,10 +1,11 @@
 """``scaletwin validate-mini``: the paper's section 4 — fitted δ1 models predict F21 on the 11 kg miniature.
 
-The miniature is solved analytically at static equilibrium under loads of 0.5–4 kg (:mod:`scaling.validation`);
-every model of a ``scaletwin fit`` directory predicts F21 there from the ER12 reference row, ``direct-pi``
-(δ1 ≡ 1) included. Prints the table, saves the figure (error against load) and, with ``--json FILE``, writes
-``{"loads_kg": [...], "models": {NAME: {"mean_abs_pct_error": x, "pct_error": [...]}}}`` (signed % errors).
-Without a run directory (and no ``./scaletwin-fit``), the demo models are fitted first into ``./scaletwin-fit``.
+The miniature is solved analytically at static equilibrium under loads of 0.5–4 kg
+(:mod:`scaling.evaluation.miniature`); every model of a ``scaletwin fit`` directory predicts F21 there from the ER12
+reference row, ``direct-pi`` (δ1 ≡ 1) included. Prints the table, saves the figure (error against load) and, with
+``--json FILE``, writes ``{"loads_kg": [...], "models": {NAME: {"mean_abs_pct_error": x, "pct_error": [...]}}}`` (signed
+% errors). Without a run directory (and no ``./scaletwin-fit``), the demo models are fitted first into
+``./scaletwin-fit``.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ if TYPE_CHECKING:
     import numpy as np
     from rich.table import Table
 
-    from scaling.validation import MiniValidation
+    from scaling.evaluation.miniature import MiniValidation
 
 DEFAULT_RUN = Path("scaletwin-fit")
 
@@ -32,7 +33,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", metavar="FILE", type=Path, help="write the loads and per-model errors as JSON")
     p.add_argument("--figure", metavar="PNG", type=Path, help="error-against-load figure (default RUN/mini.png)")
     p.add_argument("--loads", help="comma list of loads in kg (default 0.5 to 4 in 8 steps: "
-                                    "scaling.validation.LOADS)")
+                                    "scaling.evaluation.miniature.LOADS)")
     p.add_argument("--check-env", action="store_true",
                    help="also settle the simulator's MuJoCo model at each load and show its F21 (cross-check)")
     p.set_defaults(func=run)
@@ -63,8 +64,9 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
     from rich.console import Console
 
-    from scaling.provenance import provenance, write_json
-    from scaling.validation import DIRECT_PI, LOADS, env_at_rest, static_rows, validate_mini
+    from scaling.evaluation.miniature import DIRECT_PI, LOADS, env_at_rest, static_rows, validate_mini
+    from scaling.runs.plots import plot_mini_validation
+    from scaling.runs.provenance import provenance, write_json
 
     console = Console()
     run_dir = args.run_dir or DEFAULT_RUN
@@ -75,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
 
         console.print(f"[bold]No fitted models given: fitting the demo models into ./{run_dir} first[/bold]")
         fit_demo(run_dir, console)
-    from scaling.run_io import load_run
+    from scaling.runs.run_io import load_run
 
     try:
         loads = LOADS if args.loads is None else tuple(float(x) for x in args.loads.split(",") if x.strip())
@@ -91,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
         reduction = 100 * mini.reduction("ffnn")
         console.print(f"FFNN error reduction against direct Buckingham-Pi scaling: {reduction:.1f} %")
     figure = args.figure or run_dir / "mini.png"
-    mini.figure(figure)
+    plot_mini_validation(mini, figure)
     console.print(f"figure: {figure}")
     if args.json:
         write_json(args.json, mini.to_json())

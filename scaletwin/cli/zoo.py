@@ -33,22 +33,31 @@ def register(sub: argparse._SubParsersAction) -> None:
     build.add_argument("--seed", type=int, default=0, help="pipeline seed (default 0)")
     build.add_argument("--out", help="checkpoint root (default: the package's zoo/checkpoints)")
     build.add_argument("--registry", help="registry file to update (default: the package's zoo/registry.json)")
-    build.add_argument("--workers", default=None, help="local simulation workers (default: all cores)")
+    build.add_argument("--workers", default=None,
+                       help="local simulation workers: an integer or 'serial' (default: all cores; 2 with "
+                            "--product-line)")
     add_executor_args(build)
     build.set_defaults(func=run_build)
 
 
-def _build_product_line(args: argparse.Namespace) -> int:
+def _configured(cfg: Any, args: argparse.Namespace, executor: Any) -> Any:
+    """A build config (:class:`zoo.build.BuildConfig` or :class:`zoo.product_line.ProductLineBuild`) with the
+    options given: ``--out``, ``--registry`` and the executor (``None`` keeps the config's default)."""
+    changes: dict[str, Any] = {} if executor is None else {"executor": executor}
+    if args.out:
+        changes["out_root"] = Path(args.out)
+    if args.registry:
+        changes["registry"] = Path(args.registry)
+    return replace(cfg, **changes)
+
+
+def _build_product_line(args: argparse.Namespace, executor: Any) -> int:
     from zoo.product_line import NAME, ProductLineBuild, build_product_line
 
     if args.only and list(args.only) != [NAME]:
         raise CommandError(f"--product-line builds {NAME} only; drop --only")
-    cfg = ProductLineBuild(data_dir=Path(args.data or "runs/zoo-product-line"), seed=args.seed,
-                           executor=executor_from_args(args, args.workers) or 2)
-    if args.out:
-        cfg = replace(cfg, out_root=Path(args.out))
-    if args.registry:
-        cfg = replace(cfg, registry=Path(args.registry))
+    cfg = _configured(ProductLineBuild(data_dir=Path(args.data or "runs/zoo-product-line"), seed=args.seed), args,
+                      executor)
     path = build_product_line(cfg)
     import zoo
 
@@ -78,6 +87,7 @@ def run_list(args: argparse.Namespace) -> int:
 
 
 def run_build(args: argparse.Namespace) -> int:
+    executor = executor_from_args(args, args.workers)  # before the heavy imports: bad options fail at once
     import torch
     from rich.console import Console
     from rich.table import Table
@@ -86,13 +96,9 @@ def run_build(args: argparse.Namespace) -> int:
 
     torch.set_num_threads(1)
     if args.product_line:
-        return _build_product_line(args)
-    cfg = BuildConfig(data_dir=Path(args.data or "runs/zoo-data"), seed=args.seed,
-                      names=tuple(args.only) if args.only else None, executor=executor_from_args(args, args.workers))
-    if args.out:
-        cfg = replace(cfg, out_root=Path(args.out))
-    if args.registry:
-        cfg = replace(cfg, registry=Path(args.registry))
+        return _build_product_line(args, executor)
+    cfg = _configured(BuildConfig(data_dir=Path(args.data or "runs/zoo-data"), seed=args.seed,
+                                  names=tuple(args.only) if args.only else None), args, executor)
     built = build_zoo(cfg)
     table = Table(title="rebuilt checkpoints")
     for col in ("name", "directory", "held-out R² (dig)", "miniature error %"):

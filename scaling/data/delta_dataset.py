@@ -1,7 +1,7 @@
 """The δ1 learning data set: (source row, target row) pairs with their group values and prediction factor.
 
 Built from recordings as in the paper (reference row(s) of the calibrated source twin × every target row) or from
-explicit pairs; see :mod:`scaling.factors` for the δ1 convention and the feature transform.
+explicit pairs; see :mod:`scaling.dimensions.factors` for the δ1 convention and the feature transform.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from scaling.factors import (
+from scaling.dimensions.factors import (
     NonFiniteRowsWarning,
     Rows,
     group_values,
@@ -24,7 +24,7 @@ from scaling.factors import (
     solve_variable,
     source_values,
 )
-from scaling.groups import PiGroup
+from scaling.dimensions.groups import PiGroup
 
 
 @dataclass(frozen=True, eq=False)
@@ -211,7 +211,7 @@ class DeltaDataset:
                      input_groups: Sequence[PiGroup], *, target_variable: str | None = None,
                      reference_id: int = 0) -> DeltaDataset:
         """Row-aligned pairs: ``source_rows.iloc[i]`` is the source of ``target_rows.iloc[i]`` (e.g. its matched
-        row of another machine, :func:`scaling.product_line.match_rows`). Pairs with a non-finite group, a source
+        row of another machine, :func:`scaling.data.product_line.match_rows`). Pairs with a non-finite group, a source
         π_1 ≤ 0 or (labelled targets) δ1 ≤ 0 are dropped and counted in ``dropped``."""
         if len(source_rows) != len(target_rows):
             raise ValueError(f"source and target rows must align: {len(source_rows)} != {len(target_rows)}")

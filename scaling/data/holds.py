@@ -8,7 +8,7 @@ the loaded bucket is lifted clear of the pile, then a sequence of carry poses (b
 each reached with a proportional controller on the observation and held with closed valves for ``hold_steps``
 control steps, and finally the standard pull-back (which ends the episode). Poses and the penetration depth (hence
 the load) are drawn from ``seed``, so :func:`make_hold_policy` is a deterministic factory with JSON arguments
-that dataset sweeps can import by name (``"scaling.holds:make_hold_policy"``).
+that dataset sweeps can import by name (``"scaling.data.holds:make_hold_policy"``).
 """
 
 from __future__ import annotations

@@ -3,8 +3,8 @@
 The paper trains δ1 on two machines of one design; a product line differs in linkage, hydraulics, masses, bucket
 and traction (:mod:`scaletwin_envs.design_space`). This module turns such a line into δ1 learning data:
 
-* :class:`ProductLine`: a seeded sample of the design space and the :class:`~scaling.data.DatasetSpec` that digs
-  and holds with every machine (resumable, fanned out through the executor seam like every data set);
+* :class:`ProductLine`: a seeded sample of the design space and the :class:`~scaling.data.recordings.DatasetSpec` that
+  digs and holds with every machine (resumable, fanned out through the executor seam like every data set);
 * :func:`add_design_signals`: per-row quantities that follow from the machine's *design* and its measured pose,
   dimensionless: ``tilt_ratio`` (F21 per tilt-cylinder force of the massless linkage at that pose,
   :func:`~scaletwin_envs.physics.kinematics.tilt_ratio`), ``tilt_stroke`` / ``lift_stroke`` (cylinder extension
@@ -35,9 +35,9 @@ from scipy.spatial import cKDTree
 from scaletwin_envs.design_space import DesignSpace, ProductLineMachine
 from scaletwin_envs.physics.kinematics import LinkageUnreachable, tilt_ratio
 from scaletwin_envs.specs.loader import LoaderSpec, make_loader
-from scaling.data import SOILS, DatasetSpec
-from scaling.delta_dataset import DeltaDataset, concat_datasets
-from scaling.groups import PiGroup
+from scaling.data.delta_dataset import DeltaDataset, concat_datasets
+from scaling.data.recordings import SOILS, DatasetSpec
+from scaling.dimensions.groups import PiGroup
 
 #: π1 normalised by the linkage statics: F21 / (tilt_ratio · |Pf_tilt|), ≈ 1 wherever the massless linkage holds.
 PI1_LINKAGE = PiGroup({"F21": Fraction(1), "F21_linkage": Fraction(-1)}, name="pi1_linkage")

@@ -31,7 +31,7 @@ is undefined; asinh is odd, so a group that is negative in both rows gives −ln
 +ln d_n after it.
 
 The learning data set of (source, target) pairs, built on these functions, is
-:class:`scaling.delta_dataset.DeltaDataset`.
+:class:`scaling.data.delta_dataset.DeltaDataset`.
 
 All functions take raw signals in any consistent unit system: the groups are dimensionless, so δ1 and g do not
 depend on the units (N, m, kg, s or mm, g, ms).
@@ -47,7 +47,7 @@ from typing import Any, Literal
 import numpy as np
 import pandas as pd
 
-from scaling.groups import PiGroup
+from scaling.dimensions.groups import PiGroup
 
 Rows = pd.DataFrame | Mapping[str, Any]
 NonFinite = Literal["raise", "keep"]

@@ -1,17 +1,17 @@
 """Choosing the paper's group sets for F21: Eq. (10) and Eq. (23) variables, π1 = F21/F31, finite at rest.
 
-The candidate sets come from :func:`scaling.pi_theorem.enumerate_pi_sets` (every repeating-variable choice plus
-small integer-exponent combinations). Two rules narrow them before the paper's filter ranks what is left:
+The candidate sets come from :func:`scaling.dimensions.pi_theorem.enumerate_pi_sets` (every repeating-variable choice
+plus small integer-exponent combinations). Two rules narrow them before the paper's filter ranks what is left:
 
 1. π1 must be the paper's output group ``F21/F31`` (Eq. 13).
 2. Every input group must stay finite *at rest*, where the motion variables vanish (a1 = α1 = 0 for Eq. 10,
    V1 = w1 = 0 for Eq. 23): the miniature is validated at static equilibrium, and a group such as
    ``a1/(α1·x_b)`` is 0/0 there. A group whose motion variables all have exponents of one sign is kept and
    oriented so that they appear in the numerator (``m_b·a1/F31`` rather than ``F31/(a1·m_b)``; a set holds a
-   group and its inverse as one, see :class:`~scaling.pi_theorem.PiSet`), so that it is 0 at rest; a group
+   group and its inverse as one, see :class:`~scaling.dimensions.pi_theorem.PiSet`), so that it is 0 at rest; a group
    mixing signs is not finite at rest and rules its set out.
 
-The admissible sets are ranked by a scorer of :mod:`scaling.selection` (default: the paper's RMS of Pearson
+The admissible sets are ranked by a scorer of :mod:`scaling.dimensions.selection` (default: the paper's RMS of Pearson
 correlations, ``PearsonRMS``), with the shuffled-data baseline; the whole ranking is returned with the winner.
 
 ``"eq10+pose"`` (our extension, not in the paper) is the Eq. (10) winner plus the linkage pose: the boom angle
@@ -35,10 +35,10 @@ from fractions import Fraction
 import numpy as np
 import pandas as pd
 
-from scaling.groups import PiGroup
-from scaling.pi_theorem import PiSet, enumerate_pi_sets
-from scaling.scorers import Scorer
-from scaling.selection import rank_pi_sets
+from scaling.dimensions.groups import PiGroup
+from scaling.dimensions.pi_theorem import PiSet, enumerate_pi_sets
+from scaling.dimensions.scorers import Scorer
+from scaling.dimensions.selection import rank_pi_sets
 
 #: Eq. (10): F21 = F21(F31, Pf_tilt, Pf_lift, x_b, y_b, m_b, a1, α1), SI units.
 EQ10: dict[str, str] = {"F21": "N", "F31": "N", "Pf_tilt": "N", "Pf_lift": "N", "x_b": "m", "y_b": "m",

@@ -32,8 +32,8 @@ from pathlib import Path
 import numpy as np
 import sympy
 
-from scaling.groups import PiGroup
-from scaling.units import dimension_of, dimension_vectors, used_dimensions
+from scaling.dimensions.groups import PiGroup
+from scaling.dimensions.units import dimension_of, dimension_vectors, used_dimensions
 
 Vector = list[Fraction]
 

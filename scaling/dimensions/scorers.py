@@ -3,7 +3,7 @@
 One interface, :meth:`Scorer.score`, selected by name (:data:`SCORERS`, :func:`get_scorer`) or passed as an object:
 the paper's filter :class:`PearsonRMS` (RMS over the non-target groups of the Pearson correlation with ``pi1``),
 :class:`SpearmanRMS`, :class:`MutualInformation` (KSG) and :class:`CrossValidatedR2`. Ranking sets with a
-shuffled-data baseline is :func:`scaling.selection.rank_pi_sets`.
+shuffled-data baseline is :func:`scaling.dimensions.selection.rank_pi_sets`.
 """
 
 from __future__ import annotations
@@ -50,10 +50,11 @@ class PearsonRMS(Scorer):
     """The paper's filter: RMS over non-target groups of Pearson r(pi1, pi_j), in [0, 1].
 
     Pearson r is not invariant to inverting a group (r(x, y) != -r(x, 1/y)), while a set holds each group only in
-    its canonical orientation (see :class:`scaling.pi_theorem.PiSet`). ``orientation="best"`` (default) scores each
-    group in the orientation with the larger |r|, i.e. the paper's filter applied to all ``2**(k-1)`` orientations
-    of the set, keeping the best; zero-valued groups are then outside the domain. ``"canonical"`` scores the groups
-    as given. ``log=True`` correlates ``log|pi|`` instead (any power of a group scores the same; zeros dropped).
+    its canonical orientation (see :class:`scaling.dimensions.pi_theorem.PiSet`). ``orientation="best"`` (default)
+    scores each group in the orientation with the larger |r|, i.e. the paper's filter applied to all ``2**(k-1)``
+    orientations of the set, keeping the best; zero-valued groups are then outside the domain. ``"canonical"`` scores
+    the groups as given. ``log=True`` correlates ``log|pi|`` instead (any power of a group scores the same; zeros
+    dropped).
     """
 
     name = "pearson"

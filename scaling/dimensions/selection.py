@@ -1,11 +1,11 @@
 """Scoring and ranking candidate pi-group sets against data, with a shuffled-data baseline.
 
-The paper's filter (:class:`~scaling.scorers.PearsonRMS`): for a set, the score is the root mean square, over the
-non-target groups, of the Pearson correlation between the target group ``pi1`` and that group. Alternatives share
-one interface, :meth:`~scaling.scorers.Scorer.score`, and are selected by name (:data:`~scaling.scorers.SCORERS`)
-or passed as objects. Per-group scorers (Pearson, Spearman, ``MutualInformation(joint=False)``) reward sets whose
-groups each track ``pi1``; joint scorers (``MutualInformation()``, :class:`~scaling.scorers.CrossValidatedR2`)
-measure how well the groups *together* determine ``pi1``.
+The paper's filter (:class:`~scaling.dimensions.scorers.PearsonRMS`): for a set, the score is the root mean square, over
+the non-target groups, of the Pearson correlation between the target group ``pi1`` and that group. Alternatives share
+one interface, :meth:`~scaling.dimensions.scorers.Scorer.score`, and are selected by name
+(:data:`~scaling.dimensions.scorers.SCORERS`) or passed as objects. Per-group scorers (Pearson, Spearman,
+``MutualInformation(joint=False)``) reward sets whose groups each track ``pi1``; joint scorers (``MutualInformation()``,
+:class:`~scaling.dimensions.scorers.CrossValidatedR2`) measure how well the groups *together* determine ``pi1``.
 Note that all complete sets of one problem span the same groups (Buckingham), so a joint score differs between
 them only through noise and the spread of ``pi1``; it is most useful to compare different variable lists.
 
@@ -23,9 +23,9 @@ Rows: a row where the target or a group is non-finite (zero to a negative power,
 power, ...) or outside a scorer's domain (e.g. ``log`` of 0) is dropped per set and counted in ``n_dropped``. A set
 left with fewer rows than the scorer needs gets a NaN score *and* a ``note`` saying why, and is ranked last.
 Data must be in one coherent unit system (SI, or mm-g-ms, ...); convert mixed units first, e.g. with
-:func:`scaling.units.conversion_factor`.
+:func:`scaling.dimensions.units.conversion_factor`.
 
-The scorers themselves live in :mod:`scaling.scorers`.
+The scorers themselves live in :mod:`scaling.dimensions.scorers`.
 """
 
 from __future__ import annotations
@@ -37,9 +37,9 @@ from typing import Literal
 import numpy as np
 import pandas as pd
 
-from scaling.groups import PiGroup
-from scaling.pi_theorem import PiSet
-from scaling.scorers import Scorer, get_scorer
+from scaling.dimensions.groups import PiGroup
+from scaling.dimensions.pi_theorem import PiSet
+from scaling.dimensions.scorers import Scorer, get_scorer
 
 __all__ = ["DataLike", "RankBy", "as_columns", "rank_pi_sets", "select_pi_set"]
 
@@ -69,9 +69,10 @@ def rank_pi_sets(sets: Sequence[PiSet], data: DataLike, scorer: str | Scorer = "
     """Score every set on ``data`` and against the shuffled baseline (module docstring); best first.
 
     Args:
-        sets: candidate sets sharing one target (e.g. from :func:`scaling.pi_theorem.enumerate_pi_sets`).
+        sets: candidate sets sharing one target (e.g. from :func:`scaling.dimensions.pi_theorem.enumerate_pi_sets`).
         data: raw variables by name, any consistent units (groups are dimensionless).
-        scorer: a :class:`~scaling.scorers.Scorer` or a name in :data:`~scaling.scorers.SCORERS` (``"pearson"`` is
+        scorer: a :class:`~scaling.dimensions.scorers.Scorer` or a name in :data:`~scaling.dimensions.scorers.SCORERS`
+        (``"pearson"`` is
             the paper's filter).
         n_shuffles: shuffled datasets for the baseline; 0 (no baseline) or >= 2.
         seed: seeds the permutations, so rankings are reproducible.

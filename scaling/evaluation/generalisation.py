@@ -2,20 +2,20 @@
 
 Three disjoint sets of machines (grouped, never rows of one machine on two sides):
 
-* **train**: pairs of matched rows between training machines (:func:`scaling.product_line.training_pairs`);
+* **train**: pairs of matched rows between training machines (:func:`scaling.data.product_line.training_pairs`);
 * **calibration**: machines held out of training that set the conformal interval width and the extrapolation
-  threshold (:mod:`scaling.conformal`);
+  threshold (:mod:`scaling.evaluation.conformal`);
 * **test**: machines drawn with another seed, plus presets (the simulated miniature), reported one by one.
 
 A target machine is predicted from its *source*: the training machine nearest in design
-(:func:`~scaling.product_line.nearest_machine`), every target row paired with that machine's matched row. Beside
+(:func:`~scaling.data.product_line.nearest_machine`), every target row paired with that machine's matched row. Beside
 every model stand baselines: direct Buckingham-Pi (δ1 ≡ 1) with matched rows of the ER12 and of the nearest
 training machine, and the linkage statics F21 ≈ tilt_ratio · |Pf_tilt| (design and pose only, no learning).
 
-Rows judged: after the start-up settling (:func:`scaling.evaluation.after_settling`) and with F21 above 5 % of
+Rows judged: after the start-up settling (:func:`scaling.evaluation.metrics.after_settling`) and with F21 above 5 % of
 the machine's peak (relative errors on a vanishing force mean nothing); *static* rows (inertial groups below
-0.1 % of F31, :func:`scaling.evaluation.at_rest`: the loaded bucket held still) and *dynamic* rows (the rest: the
-dig cycles and the moves between holds) apart.
+0.1 % of F31, :func:`scaling.evaluation.metrics.at_rest`: the loaded bucket held still) and *dynamic* rows (the rest:
+the dig cycles and the moves between holds) apart.
 """
 
 from __future__ import annotations
@@ -31,7 +31,20 @@ import pandas as pd
 
 from scaletwin_envs.parallel import Executor
 from scaletwin_envs.specs.loader import LoaderSpec
-from scaling.conformal import (
+from scaling.data.delta_dataset import DeltaDataset
+from scaling.data.product_line import (
+    LINKAGE_GROUPS,
+    ProductLine,
+    add_design_signals,
+    design_descriptor,
+    matched_pairs,
+    nearest_machine,
+    training_pairs,
+)
+from scaling.data.recordings import SOILS, load_or_generate
+from scaling.dimensions.group_choice import PI1, POSE_GROUPS, choose_groups
+from scaling.dimensions.groups import PiGroup
+from scaling.evaluation.conformal import (
     ErrorScore,
     ExtrapolationScore,
     GroupConformal,
@@ -41,21 +54,8 @@ from scaling.conformal import (
     RowRisk,
     auroc,
 )
-from scaling.data import SOILS, load_or_generate
-from scaling.delta_dataset import DeltaDataset
-from scaling.evaluation import after_settling, at_rest, in_domain
-from scaling.group_choice import PI1, POSE_GROUPS, choose_groups
-from scaling.groups import PiGroup
+from scaling.evaluation.metrics import after_settling, at_rest, in_domain
 from scaling.models import DeepEnsemble, DeltaModel
-from scaling.product_line import (
-    LINKAGE_GROUPS,
-    ProductLine,
-    add_design_signals,
-    design_descriptor,
-    matched_pairs,
-    nearest_machine,
-    training_pairs,
-)
 
 #: Rows with F21 below this fraction of the machine's peak are not judged.
 PEAK_FRACTION = 0.05
@@ -104,7 +104,7 @@ PRODUCT_LINE_NET: dict[str, Any] = {"hidden_layers": 3, "units": 64, "lr": 1e-3,
 
 def linkage_input_groups(train: pd.DataFrame) -> tuple[PiGroup, ...]:
     """The product-line input groups: the Eq. (10) groups chosen on the training rows (those with a finite F21),
-    then the pose groups and the linkage groups (:data:`~scaling.product_line.LINKAGE_GROUPS`)."""
+    then the pose groups and the linkage groups (:data:`~scaling.data.product_line.LINKAGE_GROUPS`)."""
     eq10 = choose_groups(train[np.isfinite(train["F21"].to_numpy(float))], "eq10").inputs
     return (*eq10, *POSE_GROUPS, *LINKAGE_GROUPS)
 
@@ -166,8 +166,8 @@ class MachineResult:
     """Per held-out machine and model: errors in % on dynamic and static rows, peak F21 error (dynamic rows),
     90 % interval coverage (``coverage``: conformal on the learned residual scale, :class:`ResidualScale`;
     ``coverage_spread``: conformal on the model's own spread, the ensemble's σ or 1; ``coverage_served``: the
-    interval a served checkpoint gives, :class:`~scaling.conformal.RowInterval`, NaN for direct-Pi), judged rows and
-    the share of them more than 10 % off."""
+    interval a served checkpoint gives, :class:`~scaling.evaluation.conformal.RowInterval`, NaN for direct-Pi), judged
+    rows and the share of them more than 10 % off."""
 
     machine: str
     model: str
@@ -190,8 +190,8 @@ class GeneralisationResult:
     a model needs: the fitted ``models``, each model's ln δ1 residuals on the calibration machines with the machine
     of each row (``calibration``), the feature range of its training pairs (``training_range``: min, max) and a
     seeded sample of at most :data:`TRAINING_SAMPLE` of their feature rows (``training_sample``) and the
-    risk and interval a served model can compute per row (``row_risk``, :class:`~scaling.conformal.RowRisk`;
-    ``row_interval``, :class:`~scaling.conformal.RowInterval`)."""
+    risk and interval a served model can compute per row (``row_risk``, :class:`~scaling.evaluation.conformal.RowRisk`;
+    ``row_interval``, :class:`~scaling.evaluation.conformal.RowInterval`)."""
 
     rows: list[MachineResult]
     extrapolation: dict[str, Any] = field(default_factory=dict)
@@ -248,7 +248,7 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
 
     Args:
         frame: rows of every machine of ``split`` with design signals
-            (:func:`scaling.product_line.add_design_signals`) and ``kind``.
+            (:func:`scaling.data.product_line.add_design_signals`) and ``kind``.
         n_sources: source machines per training target machine.
     """
     say = progress or (lambda _msg: None)
@@ -395,7 +395,7 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
                                 training_sample, row_risks, row_intervals)
 
 
-#: Columns of the per-row features of the error score (:class:`scaling.conformal.ErrorScore`).
+#: Columns of the per-row features of the error score (:class:`scaling.evaluation.conformal.ErrorScore`).
 ERROR_FEATURES = ("ln σ of ln δ1 (ensembles; 0 otherwise)", "ln input novelty", "|ln δ1| predicted",
                   "ln design distance", "bucket at rest (1) or moving (0)")
 

@@ -1,7 +1,7 @@
 """Building blocks of the pipeline: scaling domain, reference row, episode split and metrics.
 
-δ1 convention (:mod:`scaling.factors`): source = one reference row of the calibrated ER12 twin (paper: "model"),
-target = any other row or machine (paper: "prototype"); δ1 = π1(source)/π1(target), π1 = F21/F31, and
+δ1 convention (:mod:`scaling.dimensions.factors`): source = one reference row of the calibrated ER12 twin (paper:
+"model"), target = any other row or machine (paper: "prototype"); δ1 = π1(source)/π1(target), π1 = F21/F31, and
 F21_target = F31_target · π1(source) / δ1 (Eq. 22).
 
 * Domain (:func:`in_domain`): rows with π1 = F21/F31 below ``min_pi1`` (default 0.1) are outside the scaling
@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from scaling.delta_dataset import DeltaDataset
+from scaling.data.delta_dataset import DeltaDataset
 from scaling.models import DeepEnsemble, DeltaModel, r2_score
 
 AT_REST_TOLERANCE = 1e-3

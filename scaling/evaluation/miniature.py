@@ -8,20 +8,19 @@ bucket), Pf_tilt, Pf_lift (N, axial cylinder forces), x_b, y_b (m, centre of mas
 bucket pin O in the bucket frame), m_b (kg), and a1 = α1 = V1 = w1 = 0 (at rest). :func:`env_at_rest` settles the
 simulator's MuJoCo model of the same machine at the same pose and load as a cross-check (tests require 1 %).
 
-Prediction (δ1 convention of :mod:`scaling.factors`): source = one reference row of the ER12 twin (the paper's
-"model"), target = a miniature row (the paper's "prototype"); each model predicts δ1 = π1(source)/π1(target)
+Prediction (δ1 convention of :mod:`scaling.dimensions.factors`): source = one reference row of the ER12 twin (the
+paper's "model"), target = a miniature row (the paper's "prototype"); each model predicts δ1 = π1(source)/π1(target)
 from the distortions of the miniature's groups, and F21_mini = F31_mini · π1(source) / δ1 (Eq. 22). ``direct-pi``
 is δ1 ≡ 1 (direct Buckingham-Pi scaling). Errors are signed percentages ``100·(predicted − actual)/actual``.
 
-Recurrent models see each load as a sequence of :data:`scaling.fitted.STATIC_STEPS` identical rows (the machine at
-rest for a while) and are read at its last step.
+Recurrent models see each load as a sequence of :data:`scaling.models.fitted.STATIC_STEPS` identical rows (the machine
+at rest for a while) and are read at its last step.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import mujoco
@@ -36,10 +35,9 @@ from scaletwin_envs.physics.statics import solve_static
 from scaletwin_envs.runtime import qpos_for_pose, set_payload
 from scaletwin_envs.signals import SignalReader
 from scaletwin_envs.specs import LoaderSpec, make_loader
-from scaling.delta_dataset import DeltaDataset
-from scaling.fitted import STATIC_STEPS, model_groups
+from scaling.data.delta_dataset import DeltaDataset
 from scaling.models import DeepEnsemble, DeltaModel, GRUModel
-from scaling.plots import plot_error_vs_load
+from scaling.models.fitted import STATIC_STEPS, model_groups
 
 #: Carry pose (rad): boom raised 0.35 rad above the dig pose, bucket racked back to a pitch of 0.6 rad (the
 #: scripted cycle racks to 0.55); both cylinders are mid-stroke there (lift ≈ 40 %, tilt ≈ 45 % extended), so
@@ -101,7 +99,7 @@ def env_at_rest(spec: str | LoaderSpec, load: float, boom: float = CARRY_POSE["b
 
 def static_pairs(model: DeltaModel, reference: pd.Series, rows: pd.DataFrame) -> tuple[DeltaDataset, np.ndarray]:
     """(pairs, index of the row each prediction belongs to) for ``model``: one pair per row, or the last step of
-    a constant :data:`~scaling.fitted.STATIC_STEPS` sequence per row for recurrent models."""
+    a constant :data:`~scaling.models.fitted.STATIC_STEPS` sequence per row for recurrent models."""
     output, inputs = model_groups(model)
     if not isinstance(model, GRUModel):
         return DeltaDataset.from_pairs(reference, rows, output, inputs, warn=False), np.arange(len(rows))
@@ -150,10 +148,10 @@ class MiniValidation:
         lo, hi = self.intervals[name]
         return float(np.mean((self.actual >= lo) & (self.actual <= hi)))
 
-    def figure(self, path: str | Path | None = None) -> Any:
-        """Fig. 12: absolute percentage error against load per model, dashed means."""
-        errors = {n: np.abs(self.pct_error(n)) for n in self.predicted}
-        return plot_error_vs_load(self.loads_kg, errors, path)
+    def abs_pct_errors(self) -> dict[str, np.ndarray]:
+        """|100·(predicted − actual)/actual| per model and load (%), what Fig. 12 plots
+        (:func:`scaling.runs.plots.plot_mini_validation`)."""
+        return {n: np.abs(self.pct_error(n)) for n in self.predicted}
 
 
 def validate_mini(models: Mapping[str, DeltaModel], reference: pd.Series, rows: pd.DataFrame | None = None,

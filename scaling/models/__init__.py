@@ -1,7 +1,7 @@
 """δ1 models: one ``fit(dataset) / predict(X or dataset) / score(dataset) -> R²`` interface, persisted without pickle.
 
 All learn ``ln δ1 = f(g_2..g_n)`` with δ1 = π_1(source)/π_1(target) (paper Eq. 16/20) and g_n the generalised log
-distortions (:class:`scaling.factors.LogDistortion`).
+distortions (:class:`scaling.dimensions.factors.LogDistortion`).
 
 * :class:`DirectPi`: δ1 ≡ 1 (direct Buckingham-Pi scaling, the baseline);
 * :class:`PowerLaw`: ln δ1 = Σ a_n g_n + b (least squares);

@@ -11,7 +11,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from scaling.delta_dataset import DeltaDataset
+from scaling.data.delta_dataset import DeltaDataset
 from scaling.models.base import DeltaModel
 
 LossFn = Callable[[torch.Tensor, torch.Tensor, torch.Tensor | None], torch.Tensor]

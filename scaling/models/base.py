@@ -2,7 +2,8 @@
 
 Every model learns ``ln δ1 = f(g_2..g_n)`` where δ1 = π_1(source)/π_1(target) (paper Eq. 16/20; source = the
 calibrated machine, the paper's "model"; target = the machine to predict, the paper's "prototype") and g_n are the
-generalised log distortions of :class:`scaling.factors.LogDistortion` (≈ ln d_n). ``predict`` returns δ1 itself.
+generalised log distortions of :class:`scaling.dimensions.factors.LogDistortion` (≈ ln d_n). ``predict`` returns δ1
+itself.
 
 Persistence: ``save(dir)`` writes ``config.json`` (class, hyper-parameters, groups, feature transform) and
 ``weights.safetensors`` (tensors only); ``load_model(dir)`` rebuilds the model. No pickle anywhere.
@@ -19,8 +20,8 @@ import numpy as np
 import torch
 from safetensors.torch import load_file, save_file
 
-from scaling.delta_dataset import DeltaDataset
-from scaling.factors import LogDistortion
+from scaling.data.delta_dataset import DeltaDataset
+from scaling.dimensions.factors import LogDistortion
 
 CONFIG_FILE = "config.json"
 WEIGHTS_FILE = "weights.safetensors"

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from scaling.delta_dataset import DeltaDataset
+from scaling.data.delta_dataset import DeltaDataset
 from scaling.models import _torch as T
 from scaling.models.base import Data, DeltaModel
 from scaling.models.ffnn import FFNN

@@ -19,7 +19,7 @@ import pandas as pd
 from tqdm.auto import tqdm
 
 from scaletwin_envs.parallel import Executor, make_executor
-from scaling.delta_dataset import DeltaDataset
+from scaling.data.delta_dataset import DeltaDataset
 from scaling.models.base import model_class
 
 #: The paper's four hyper-parameters; 3 × 4 × 2 × 2 = 48 configurations.

@@ -14,7 +14,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from scaling.delta_dataset import DeltaDataset
+from scaling.data.delta_dataset import DeltaDataset
 from scaling.models import _torch as T
 from scaling.models.base import Data
 

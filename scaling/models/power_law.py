@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from scaling.delta_dataset import DeltaDataset
+from scaling.data.delta_dataset import DeltaDataset
 from scaling.models.base import Data, DeltaModel
 
 #: Features are clipped to [min − m·span, max + m·span] of the training features (m, dimensionless).

@@ -1,19 +1,20 @@
 """The training pipeline: recordings → group sets → δ1 data set → fits → metrics → a run directory.
 
-δ1 convention (:mod:`scaling.factors`): source = one reference row of the calibrated ER12 twin (the paper's
+δ1 convention (:mod:`scaling.dimensions.factors`): source = one reference row of the calibrated ER12 twin (the paper's
 "model"), target = every other row / machine (the paper's "prototype"); δ1 = π1(source)/π1(target) with
 π1 = F21/F31 (Eq. 13, 20); F21_target = F31_target · π1(source) / δ1 (Eq. 22).
 
 Steps of :meth:`ScalingPipeline.run`:
 
-1. keep the rows inside the scaling domain (:func:`scaling.evaluation.in_domain`);
-2. choose the Eq. (10) and Eq. (23) group sets (:func:`scaling.group_choice.choose_groups`: candidates from the
+1. keep the rows inside the scaling domain (:func:`scaling.evaluation.metrics.in_domain`);
+2. choose the Eq. (10) and Eq. (23) group sets (:func:`scaling.dimensions.group_choice.choose_groups`: candidates from
+the
    Buckingham-Pi enumeration, π1 = F21/F31, finite at rest, ranked by the paper's RMS-Pearson filter);
-3. pick the reference row (:func:`scaling.evaluation.pick_reference`) and build the δ1 pairs;
-4. hold out whole episodes (:func:`scaling.evaluation.split_episodes`, the same for every model);
+3. pick the reference row (:func:`scaling.evaluation.metrics.pick_reference`) and build the δ1 pairs;
+4. hold out whole episodes (:func:`scaling.evaluation.metrics.split_episodes`, the same for every model);
 5. fit every :class:`ModelSpec`, log each fit to rerun, score on the held-out episodes;
-6. score machines never trained on (``held_out`` data) and the miniature validation (:mod:`scaling.validation`);
-7. write the run directory (:mod:`scaling.run_io`).
+6. score machines never trained on (``held_out`` data) and the miniature validation
+(:mod:`scaling.evaluation.miniature`); 7. write the run directory (:mod:`scaling.runs.run_io`).
 """
 
 from __future__ import annotations
@@ -28,13 +29,13 @@ import numpy as np
 import pandas as pd
 from tqdm.auto import tqdm
 
-from scaling import evaluation as ev
-from scaling.data import DataBundle
-from scaling.delta_dataset import DeltaDataset
-from scaling.fitted import model_groups
-from scaling.group_choice import GroupChoice, choose_groups
+from scaling.data.delta_dataset import DeltaDataset
+from scaling.data.recordings import DataBundle
+from scaling.dimensions.group_choice import GroupChoice, choose_groups
+from scaling.evaluation import metrics as ev
+from scaling.evaluation.miniature import MiniValidation, validate_mini
 from scaling.models import DeltaModel, model_class
-from scaling.validation import MiniValidation, validate_mini
+from scaling.models.fitted import model_groups
 
 
 @dataclass(frozen=True)
@@ -59,7 +60,7 @@ ENSEMBLE_CONFIG: dict[str, Any] = {"k": 5, "hidden_layers": 3, "units": 64, "lr"
                                    "batch_size": 512, "patience": 40}
 
 #: The paper's three models, its baseline, a power law, an ensemble for intervals, and our FFNN that also sees the
-#: linkage pose (:data:`scaling.group_choice.POSE_GROUPS`).
+#: linkage pose (:data:`scaling.dimensions.group_choice.POSE_GROUPS`).
 DEFAULT_MODELS: tuple[ModelSpec, ...] = (
     ModelSpec("ffnn", "FFNN", "eq10", FFNN_CONFIG),
     ModelSpec("ffnn-pose", "FFNN", "eq10+pose", FFNN_CONFIG),
@@ -89,9 +90,9 @@ class PipelineConfig:
 
     Attributes:
         models: what to fit.  source_machine: the calibrated twin (paper: model).
-        reference: ``"static"`` or ``"random"`` (:func:`~scaling.evaluation.pick_reference`).
-        min_pi1, settle_steps: scaling domain (:func:`~scaling.evaluation.in_domain`,
-            :func:`~scaling.evaluation.after_settling`).  test_fraction: held-out episodes.
+        reference: ``"static"`` or ``"random"`` (:func:`~scaling.evaluation.metrics.pick_reference`).
+        min_pi1, settle_steps: scaling domain (:func:`~scaling.evaluation.metrics.in_domain`,
+            :func:`~scaling.evaluation.metrics.after_settling`).  test_fraction: held-out episodes.
         seed: seeds the split, the scorer's shuffles, every model and (unless ``reference_seed``) the reference draw.
         reference_seed: seed of the reference draw alone (None: ``seed``).
         scorer, n_shuffles: group-set ranking.  rel_eps: ε_n/median|π_n| of the log-distortion features.
@@ -204,7 +205,7 @@ class ScalingPipeline:
         result = PipelineResult(cfg, prep.choices, prep.reference, models, metrics, held_out, mini, tests, kinds,
                                 prep.domain, dict(data.hashes))
         if out_dir is not None:
-            from scaling.run_io import save_run
+            from scaling.runs.run_io import save_run
 
             result.out_dir = save_run(result, out_dir, rerun=rerun)
         return result

@@ -7,7 +7,8 @@ switch, no window, nothing to close.
 * :func:`plot_grid_heatmap`: mean R² over units per layer × dropout (Fig. 8);
 * :func:`plot_grid_landscape`: units × dropout × R², colour = learning rate, marker = hidden layers (Fig. 9);
 * :func:`plot_r2_vs_units`: mean R² against units per layer (Fig. 10);
-* :func:`plot_error_vs_load`: percentage error against the carried load per model, dashed means (Fig. 12).
+* :func:`plot_error_vs_load`: percentage error against the carried load per model, dashed means (Fig. 12);
+  :func:`plot_mini_validation` draws it for a :class:`~scaling.evaluation.miniature.MiniValidation`.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.colors import LogNorm
 from matplotlib.figure import Figure
 
+from scaling.evaluation.miniature import MiniValidation
 from scaling.models.base import r2_score
 
 PathLike = str | Path | None
@@ -113,3 +115,8 @@ def plot_error_vs_load(load: np.ndarray, errors: Mapping[str, np.ndarray], path:
     ax.set(xlabel=load_label, ylabel="error (%)", title="scaling error against load")
     ax.legend(fontsize=8)
     return _finish(fig, path)
+
+
+def plot_mini_validation(mini: MiniValidation, path: PathLike = None) -> Figure:
+    """Fig. 12 of a miniature validation: absolute percentage error against load per model, dashed means."""
+    return plot_error_vs_load(mini.loads_kg, mini.abs_pct_errors(), path)

@@ -1,4 +1,4 @@
-"""The Markdown report of :func:`scaling.reproduce.reproduce`: our figures and numbers beside the paper's.
+"""The Markdown report of :func:`scaling.runs.reproduce.reproduce`: our figures and numbers beside the paper's.
 
 The paper's figures are not available as images, so each row of the figure table quotes the paper's caption and
 the number it reports next to our PNG and our number.
@@ -12,10 +12,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import pandas as pd
 
-from scaling.provenance import code_version, machine
+from scaling.runs.provenance import code_version, machine
 
 if TYPE_CHECKING:
-    from scaling.reproduce import ReproduceResult
+    from scaling.runs.reproduce import ReproduceResult
 
 PAPER = {"ffnn_r2": 0.99, "gru_eq10_r2": 0.81, "gru_eq23_r2": 0.85, "mini_ffnn": 4.29, "mini_direct": 42.04,
          "reduction": 0.90}

@@ -4,10 +4,10 @@
 
     data/train, data/held_out   Parquet recordings (resumable; reruns reuse them)
     grid/results.csv            the FFNN grid search (paper Figs. 8–10), resumable
-    run/                        the run directory of :mod:`scaling.run_io` (models, metrics, provenance, rerun logs)
-    figures/*.png               our versions of the paper's figures (also in figures/figures.rrd for rerun)
+    run/                        the run directory of :mod:`scaling.runs.run_io` (models, metrics, provenance, rerun
+    logs) figures/*.png               our versions of the paper's figures (also in figures/figures.rrd for rerun)
     reference_sensitivity.csv   miniature errors of FFNN and direct-Pi for several reference rows
-    report.md                   our figures and numbers beside the paper's (:mod:`scaling.report`)
+    report.md                   our figures and numbers beside the paper's (:mod:`scaling.runs.report`)
     provenance.json, timings.json
 
 The grid search runs on the pipeline's FFNN δ1 training pairs only: it fits on part of the training episodes and
@@ -27,11 +27,11 @@ import numpy as np
 import pandas as pd
 
 from scaletwin_envs.parallel import Executor
-from scaling import plots
-from scaling.data import HELD_OUT, STANDARD, TINY, DataBundle, DatasetSpec, load_or_generate, summary
-from scaling.grid import DEFAULT_GRID, GridSearch, best_config
-from scaling.pipeline import FFNN_CONFIG, ModelSpec, PipelineConfig, PipelineResult, ScalingPipeline, model_specs
-from scaling.provenance import provenance, write_json
+from scaling.data.recordings import HELD_OUT, STANDARD, TINY, DataBundle, DatasetSpec, load_or_generate, summary
+from scaling.models.grid import DEFAULT_GRID, GridSearch, best_config
+from scaling.runs import plots
+from scaling.runs.pipeline import FFNN_CONFIG, ModelSpec, PipelineConfig, PipelineResult, ScalingPipeline, model_specs
+from scaling.runs.provenance import provenance, write_json
 
 
 @dataclass(frozen=True)
@@ -80,7 +80,7 @@ def reproduce(out_dir: str | Path, config: ReproduceConfig | None = None,
               executor: str | int | Executor | None = None, progress: bool = True,
               rerun: bool = True) -> ReproduceResult:
     """Run the whole reproduction into ``out_dir`` (see module docstring) and write ``report.md``."""
-    from scaling.report import write_report
+    from scaling.runs.report import write_report
 
     cfg = config or ReproduceConfig()
     out = Path(out_dir)
@@ -115,7 +115,7 @@ def reproduce(out_dir: str | Path, config: ReproduceConfig | None = None,
     seconds["reference_sensitivity"] = time.perf_counter() - t0
     figures = make_figures(run, grid, out / "figures")
     if rerun:
-        from scaling.rerun_log import log_figures
+        from scaling.runs.rerun_log import log_figures
 
         log_figures(figures, out / "figures" / "figures.rrd")
     data_summary = pd.concat([summary(train).assign(split="train"), summary(held).assign(split="held out")])
@@ -168,5 +168,5 @@ def make_figures(run: PipelineResult, grid: pd.DataFrame, fig_dir: str | Path) -
         out["r2_vs_units"] = fig_dir / "r2_vs_units.png"
         plots.plot_r2_vs_units(grid, out["r2_vs_units"])
     out["error_vs_load"] = fig_dir / "error_vs_load.png"
-    run.mini.figure(out["error_vs_load"])
+    plots.plot_mini_validation(run.mini, out["error_vs_load"])
     return out

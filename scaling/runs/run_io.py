@@ -1,4 +1,4 @@
-"""The run directory written by :class:`scaling.pipeline.ScalingPipeline` and read back by the CLI.
+"""The run directory written by :class:`scaling.runs.pipeline.ScalingPipeline` and read back by the CLI.
 
 Layout (JSON + safetensors + CSV + rerun files; no pickle)::
 
@@ -7,7 +7,7 @@ Layout (JSON + safetensors + CSV + rerun files; no pickle)::
       provenance.json       code version, pipeline config, seed, data hashes, versions, machine
       reference.json        the source row (ER12; the paper's "model" row): every signal, SI
       mini.json             the miniature validation (``{"loads_kg": [...], "models": {...}}``)
-      groups/<eq>.json      the chosen group set (a scaling.pi_theorem manifest), groups/<eq>_ranking.csv
+      groups/<eq>.json      the chosen group set (a scaling.dimensions.pi_theorem manifest), groups/<eq>_ranking.csv
       models/<name>/        config.json + weights.safetensors (:meth:`DeltaModel.save`), metrics.json,
                             provenance.json, fit.rrd (rerun log of the fit)
 """
@@ -20,12 +20,12 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import pandas as pd
 
+from scaling.dimensions.pi_theorem import write_manifest
 from scaling.models import DeltaModel, load_model
-from scaling.pi_theorem import write_manifest
-from scaling.provenance import provenance, read_json, write_json
+from scaling.runs.provenance import provenance, read_json, write_json
 
 if TYPE_CHECKING:
-    from scaling.pipeline import PipelineResult
+    from scaling.runs.pipeline import PipelineResult
 
 METRICS, PROVENANCE, REFERENCE, MINI = "metrics.json", "provenance.json", "reference.json", "mini.json"
 
@@ -59,7 +59,7 @@ def save_run(result: PipelineResult, out_dir: str | Path, rerun: bool = True) ->
                                                             "config": model.get_config()},
                                                  cfg.seed, result.data_hashes, run=str(out)))
         if rerun:
-            from scaling.rerun_log import log_fit
+            from scaling.runs.rerun_log import log_fit
 
             test = result.test_sets[spec.groups]
             log_fit(model, mdir / "fit.rrd", name=name, actual=test.delta, predicted=model.predict(test),

@@ -14,7 +14,7 @@ import numpy as np
 import scaletwin_envs  # noqa: F401
 from scaletwin_envs.design_space import DesignSpace
 from scaletwin_envs.physics.kinematics import LinkageUnreachable, tilt_ratio
-from scaling.holds import make_hold_policy
+from scaling.data.holds import make_hold_policy
 
 
 def test_piston_force_is_the_transmitted_force_where_the_servo_chatters() -> None:

@@ -6,12 +6,12 @@ import pandas as pd
 import pytest
 import torch
 
-from scaling.data import TINY, generate_frame
+from scaling.data.recordings import TINY, generate_frame
 
 torch.set_num_threads(1)
 
 
 @pytest.fixture(scope="session")
 def tiny_frame() -> pd.DataFrame:
-    """:data:`scaling.data.TINY` simulated in memory: 3 dig cycles and 2 static holds per machine (~4 s)."""
+    """:data:`scaling.data.recordings.TINY` simulated in memory: 3 dig cycles and 2 static holds per machine (~4 s)."""
     return generate_frame(TINY)

@@ -17,12 +17,12 @@ import pandas as pd
 import pytest
 
 from scaletwin.cli import build_parser, main
-from scaling.data import DatasetSpec, generate_recordings, load_recordings
-from scaling.delta_dataset import DeltaDataset
-from scaling.evaluation import split_episodes
-from scaling.fitted import model_groups
-from scaling.run_io import load_run
-from scaling.validation import static_pairs, static_rows
+from scaling.data.delta_dataset import DeltaDataset
+from scaling.data.recordings import DatasetSpec, generate_recordings, load_recordings
+from scaling.evaluation.metrics import split_episodes
+from scaling.evaluation.miniature import static_pairs, static_rows
+from scaling.models.fitted import model_groups
+from scaling.runs.run_io import load_run
 
 MICRO = DatasetSpec(soils=("gravel",), pile_heights=(0.7,), dig_seeds=2, hold_episodes=1, hold_poses=2)
 
@@ -46,8 +46,8 @@ def _r2(actual: np.ndarray, predicted: np.ndarray) -> float:
 
 
 def _held_out_rows(data_dir: Path, min_pi1: float = 0.1, settle: int = 10, seed: int = 0) -> pd.DataFrame:
-    """The rows the pipeline scores on, selected by hand: in the domain (documented in scaling.evaluation) and in the
-    seeded held-out episodes (the split itself is the library's, 20 % of each machine's episodes per kind)."""
+    """The rows the pipeline scores on, selected by hand: in the domain (documented in scaling.evaluation.metrics) and
+    in the seeded held-out episodes (the split itself is the library's, 20 % of each machine's episodes per kind)."""
     frame = load_recordings(data_dir)
     step = frame.groupby("episode").cumcount()  # rows are in time order per episode
     pi1 = frame["F21"] / frame["F31"]
@@ -166,7 +166,7 @@ def test_demo_on_tiny_settings(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) 
 
 
 def test_reproduce_quick_writes_the_report(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    import scaling.reproduce as rep
+    import scaling.runs.reproduce as rep
 
     monkeypatch.setattr(rep, "QUICK", replace(rep.QUICK, train=MICRO, reference_draws=1,
                                               held_out=replace(rep.QUICK.held_out, dig_seeds=1)))

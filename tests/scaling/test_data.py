@@ -8,8 +8,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from scaling import evaluation as ev
-from scaling.data import (
+from scaling.data.holds import draw_hold, make_hold_policy, pose_in_workspace
+from scaling.data.recordings import (
     STANDARD,
     DatasetSpec,
     StaleRecordingsWarning,
@@ -19,7 +19,7 @@ from scaling.data import (
     load_or_generate,
     load_recordings,
 )
-from scaling.holds import draw_hold, make_hold_policy, pose_in_workspace
+from scaling.evaluation import metrics as ev
 
 ONE = DatasetSpec(machines=(("er12", "er12"),), soils=("gravel",), pile_heights=(0.7,), dig_seeds=1,
                   hold_episodes=1, hold_poses=2)

@@ -12,9 +12,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from scaling import factors
-from scaling.delta_dataset import DeltaDataset, concat_datasets
-from scaling.factors import (
+from scaling.data.delta_dataset import DeltaDataset, concat_datasets
+from scaling.dimensions import factors
+from scaling.dimensions.factors import (
     LogDistortion,
     NonFiniteRowsWarning,
     distortions,
@@ -25,7 +25,7 @@ from scaling.factors import (
     recover_target,
     scaled_variable,
 )
-from scaling.groups import PiGroup
+from scaling.dimensions.groups import PiGroup
 
 PI1 = PiGroup({"F21": 1, "F31": -1}, "pi1")
 INPUTS = (
@@ -310,6 +310,6 @@ def test_unlabelled_pairs_predict_target(rec: pd.DataFrame) -> None:
 
 
 def test_the_data_set_lives_in_delta_dataset_only() -> None:
-    """No redirect: :mod:`scaling.factors` is the layer below the data set and does not re-export it."""
-    assert DeltaDataset.__module__ == concat_datasets.__module__ == "scaling.delta_dataset"
+    """No redirect: :mod:`scaling.dimensions.factors` is the layer below the data set and does not re-export it."""
+    assert DeltaDataset.__module__ == concat_datasets.__module__ == "scaling.data.delta_dataset"
     assert not hasattr(factors, "DeltaDataset") and not hasattr(factors, "concat_datasets")

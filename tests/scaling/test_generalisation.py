@@ -10,12 +10,12 @@ import pandas as pd
 import pytest
 
 from scaletwin.cli import main as cli_main
-from scaling.data import generate_frame
-from scaling.generalisation import Candidate, Split, evaluate, judged_rows
-from scaling.group_choice import PI1, POSE_GROUPS
-from scaling.groups import PiGroup
+from scaling.data.product_line import LINKAGE_GROUPS, ProductLine, add_design_signals
+from scaling.data.recordings import generate_frame
+from scaling.dimensions.group_choice import PI1, POSE_GROUPS
+from scaling.dimensions.groups import PiGroup
+from scaling.evaluation.generalisation import Candidate, Split, evaluate, judged_rows
 from scaling.models import FFNN
-from scaling.product_line import LINKAGE_GROUPS, ProductLine, add_design_signals
 
 LINE = ProductLine(n_machines=6, seed=5, soils=("gravel",), pile_heights=(0.7,), dig_seeds=1, hold_episodes=1,
                    hold_poses=2, presets=("er12",))
@@ -58,7 +58,7 @@ def test_every_held_out_machine_is_judged_against_the_baselines(frame: pd.DataFr
     assert set(table["machine"]) == set(split.test)
     assert (table.groupby("machine").size() == len(models)).all()
     # direct-Pi from the ER12 by hand
-    from scaling.product_line import match_rows
+    from scaling.data.product_line import match_rows
 
     by = {m: g.reset_index(drop=True) for m, g in frame.groupby("machine")}
     for m in split.test:
@@ -101,7 +101,7 @@ def test_relief_share_counts_dig_rows_at_either_relief() -> None:
     """A row counts when the lift or the tilt pressure reaches 98 % of that cylinder's relief (either sign);
     hold episodes are left out."""
     from scaletwin_envs.specs import make_loader
-    from scaling.product_line import relief_share
+    from scaling.data.product_line import relief_share
 
     spec = make_loader("er12")
     pl, pt = spec.lift.relief_pressure, spec.tilt.relief_pressure

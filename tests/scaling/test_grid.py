@@ -11,10 +11,10 @@ import pytest
 import torch
 from matplotlib.figure import Figure
 
-import scaling.grid as grid_mod
-from scaling.delta_dataset import DeltaDataset
-from scaling.grid import DEFAULT_GRID, GridSearch, best_config, config_key, expand_grid
-from scaling.plots import (
+import scaling.models.grid as grid_mod
+from scaling.data.delta_dataset import DeltaDataset
+from scaling.models.grid import DEFAULT_GRID, GridSearch, best_config, config_key, expand_grid
+from scaling.runs.plots import (
     plot_error_vs_load,
     plot_grid_heatmap,
     plot_grid_landscape,

@@ -10,7 +10,7 @@ import pandas as pd
 import pytest
 import torch
 
-from scaling.delta_dataset import DeltaDataset
+from scaling.data.delta_dataset import DeltaDataset
 from scaling.models import (
     FFNN,
     DeepEnsemble,

@@ -12,8 +12,8 @@ import pytest
 import sympy
 
 from scaling import PiGroup, PiSet, enumerate_pi_sets, pi_groups, read_manifest, write_manifest
-from scaling.pi_theorem import canonical_order, dimension_matrix, lattice_vectors, null_space_rref
-from scaling.units import conversion_factor, dimension_of, dimension_vector
+from scaling.dimensions.pi_theorem import canonical_order, dimension_matrix, lattice_vectors, null_space_rref
+from scaling.dimensions.units import conversion_factor, dimension_of, dimension_vector
 
 F = Fraction
 PENDULUM = {"T": "s", "L": "m", "m": "kg", "g": "m/s^2"}

@@ -11,13 +11,13 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from scaling import evaluation as ev
-from scaling.data import DataBundle
-from scaling.group_choice import AT_REST, EQ10, PI1, POSE, admissible_sets, choose_groups, orient_at_rest
-from scaling.groups import PiGroup
-from scaling.pipeline import PipelineConfig, ScalingPipeline, model_specs
-from scaling.run_io import load_run, read_metrics
-from scaling.validation import static_rows
+from scaling.data.recordings import DataBundle
+from scaling.dimensions.group_choice import AT_REST, EQ10, PI1, POSE, admissible_sets, choose_groups, orient_at_rest
+from scaling.dimensions.groups import PiGroup
+from scaling.evaluation import metrics as ev
+from scaling.evaluation.miniature import static_rows
+from scaling.runs.pipeline import PipelineConfig, ScalingPipeline, model_specs
+from scaling.runs.run_io import load_run, read_metrics
 
 FAST = {"FFNN": {"epochs": 40, "patience": 10}, "GRUModel": {"epochs": 5, "window": 32, "stride": 16},
         "DeepEnsemble": {"epochs": 20, "k": 2, "patience": 10}}

@@ -14,7 +14,22 @@ import pytest
 from scaletwin_envs.design_space import DesignSpace, build_design
 from scaletwin_envs.physics.kinematics import LinkageUnreachable, pose_from_cylinders
 from scaletwin_envs.specs.loader import GRAVITY, LoaderSpec, make_loader
-from scaling.conformal import (
+from scaling.data.delta_dataset import DeltaDataset
+from scaling.data.product_line import (
+    LINKAGE_GROUPS,
+    ProductLine,
+    add_design_signals,
+    design_descriptor,
+    machine_folds,
+    match_rows,
+    matched_pairs,
+    nearest_machine,
+    training_pairs,
+)
+from scaling.data.recordings import generate_frame
+from scaling.dimensions.group_choice import PI1
+from scaling.dimensions.groups import PiGroup
+from scaling.evaluation.conformal import (
     ErrorScore,
     ExtrapolationScore,
     GroupConformal,
@@ -26,21 +41,6 @@ from scaling.conformal import (
     coverage_by_group,
     group_weighted_quantile,
     machine_level_quantile,
-)
-from scaling.data import generate_frame
-from scaling.delta_dataset import DeltaDataset
-from scaling.group_choice import PI1
-from scaling.groups import PiGroup
-from scaling.product_line import (
-    LINKAGE_GROUPS,
-    ProductLine,
-    add_design_signals,
-    design_descriptor,
-    machine_folds,
-    match_rows,
-    matched_pairs,
-    nearest_machine,
-    training_pairs,
 )
 
 LINE = ProductLine(n_machines=3, seed=0, soils=("gravel",), pile_heights=(0.7,), dig_seeds=1, hold_episodes=1,

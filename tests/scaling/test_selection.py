@@ -16,7 +16,7 @@ from scaling import (
     rank_pi_sets,
     select_pi_set,
 )
-from scaling.units import conversion_factor
+from scaling.dimensions.units import conversion_factor
 
 LENGTHS = {"y": "m", "a": "m", "b": "m", "c": "m"}
 EQ10 = {"F21": "N", "F31": "N", "Pf_tilt": "N", "Pf_lift": "N", "x_b": "m", "y_b": "m", "m_b": "kg",

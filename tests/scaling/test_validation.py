@@ -9,11 +9,11 @@ import pandas as pd
 import pytest
 
 from scaletwin_envs.specs import make_loader
-from scaling.delta_dataset import DeltaDataset
-from scaling.group_choice import EQ10, PI1
-from scaling.groups import PiGroup
+from scaling.data.delta_dataset import DeltaDataset
+from scaling.dimensions.group_choice import EQ10, PI1
+from scaling.dimensions.groups import PiGroup
+from scaling.evaluation.miniature import CARRY_POSE, LOADS, MiniValidation, env_at_rest, static_rows, validate_mini
 from scaling.models import DirectPi, PowerLaw
-from scaling.validation import CARRY_POSE, LOADS, MiniValidation, env_at_rest, static_rows, validate_mini
 
 SIGNALS = ("F21", "F31", "Pf_tilt", "Pf_lift", "x_b", "y_b", "m_b")
 INPUTS = (PiGroup({"a1": 1, "m_b": 1, "F31": -1}), PiGroup({"Pf_tilt": 1, "F31": -1}),

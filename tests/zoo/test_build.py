@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 import zoo
-from scaling.reproduce import QUICK
+from scaling.runs.reproduce import QUICK
 from zoo.build import ENTRIES, FFNN_GRID_BEST, BuildConfig, build_zoo, entries, zoo_specs
 
 

@@ -82,7 +82,7 @@ def test_predict_errors_are_one_line(check: pd.DataFrame, tmp_path: Path, capsys
     check.drop(columns=["F21 [N]", "Pf_lift [N]"]).to_csv(target, index=False)
     assert main(["predict", "--model", "ffnn-eq10", "--target", str(target)]) == 2
     err = capsys.readouterr().err.strip()
-    assert err.startswith("scaletwin predict: error: target: missing quantities: Pf_lift [N]")
+    assert err.startswith(f"scaletwin predict: error: target {target}: missing quantities: Pf_lift [N]")
     assert "Traceback" not in err
     assert main(["predict", "--model", "bucketfill-ppo", "--target", str(target)]) == 2
     assert "not a scaling model" in capsys.readouterr().err

@@ -21,7 +21,8 @@ zoo.load("ffnn-eq10")
 print(json.dumps({"import zoo.serving.model": served, "zoo.load('ffnn-eq10')": sorted(sys.modules)}))
 """
 #: Modules of :mod:`scaling` that build on the simulator or plot (validation, data generation, pipeline, figures).
-HEAVY_SCALING = ("scaling.validation", "scaling.plots", "scaling.data", "scaling.holds", "scaling.pipeline")
+HEAVY_SCALING = ("scaling.evaluation.miniature", "scaling.runs.plots", "scaling.data.recordings", "scaling.data.holds",
+                 "scaling.runs.pipeline")
 
 
 @pytest.fixture(scope="module")

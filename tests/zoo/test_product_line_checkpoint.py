@@ -15,12 +15,12 @@ import pytest
 from safetensors.numpy import load_file
 
 import zoo
-from scaling.conformal import RowInterval, RowRisk, group_weighted_quantile
-from scaling.delta_dataset import DeltaDataset
-from scaling.fitted import model_groups
-from scaling.generalisation import LeaveMachineOut, finite_groups, judged_rows, row_kinds
+from scaling.data.delta_dataset import DeltaDataset
+from scaling.data.product_line import PI1_LINKAGE, match_rows, nearest_machine
+from scaling.evaluation.conformal import RowInterval, RowRisk, group_weighted_quantile
+from scaling.evaluation.generalisation import LeaveMachineOut, finite_groups, judged_rows, row_kinds
 from scaling.models import load_model
-from scaling.product_line import PI1_LINKAGE, match_rows, nearest_machine
+from scaling.models.fitted import model_groups
 from zoo.product_line import NAME, ProductLineBuild, build_product_line
 
 TINY = LeaveMachineOut(n_train=3, n_calibration=2, n_test=1, soils=("gravel",), test_presets=("mini",),

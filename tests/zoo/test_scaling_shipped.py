@@ -15,10 +15,10 @@ import pandas as pd
 import pytest
 
 import zoo
-from scaling import evaluation as ev
-from scaling.grid import best_config
+from scaling.evaluation import metrics as ev
+from scaling.evaluation.miniature import static_rows
 from scaling.models import r2_score
-from scaling.validation import static_rows
+from scaling.models.grid import best_config
 from zoo.build import ENTRIES, FFNN_GRID_BEST
 from zoo.checkpoint import verify_files
 from zoo.product_line import NAME as PRODUCT_LINE

@@ -13,7 +13,7 @@ import pandas as pd
 import pytest
 
 import zoo
-from scaling.delta_dataset import DeltaDataset
+from scaling.data.delta_dataset import DeltaDataset
 from zoo.scaling_kind import check_rows
 from zoo.serving.inputs import split_header
 

@@ -14,8 +14,8 @@ import pytest
 import torch
 
 import zoo
-from scaling.delta_dataset import DeltaDataset, concat_datasets
-from scaling.factors import LogDistortion
+from scaling.data.delta_dataset import DeltaDataset, concat_datasets
+from scaling.dimensions.factors import LogDistortion
 from scaling.models import FFNN, DeepEnsemble, DeltaModel, GRUModel
 from tests.scaling.test_factors import INPUTS, PI1, synthetic_recordings
 from zoo.scaling_kind import check_rows

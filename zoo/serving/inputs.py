@@ -12,7 +12,9 @@ Accepted forms of the rows of a machine (source or target):
 * a NumPy array of shape ``(n, v)`` or ``(v,)`` whose columns are the model's variables in order, SI.
 
 Every problem is a :class:`InputError` (a ``ValueError``) naming the column: missing quantities, units of the wrong
-dimension, unknown units, non-numeric or non-finite values. Nothing is silently dropped or filled in.
+dimension, unknown units, non-numeric or non-finite values. Nothing is silently dropped or filled in. A file that
+cannot be read (truncated, not text, not CSV) or that names a column twice is an :class:`InputError` naming the file.
+tests/test_bad_files.py feeds these functions mangled files generated with hypothesis.
 """
 
 from __future__ import annotations
@@ -24,7 +26,6 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-import pint
 import pyarrow.parquet as pq
 
 from scaletwin_envs.recording.importer import to_si
@@ -35,6 +36,16 @@ from scaletwin_envs.signal_units import QUANTITY_UNITS
 Rows = (pd.DataFrame | pd.Series | Mapping[str, Any] | Sequence[Mapping[str, Any]] | Recording | np.ndarray
         | Sequence[float])
 _HEADER = re.compile(r"^\s*(?P<name>[^\[\]]+?)\s*\[(?P<unit>[^\[\]]*)\]\s*$")
+#: Superscript characters: pint reads a run of them as one exponent (``m⁻¹``); the importer first rewrites ``²`` and
+#: ``³`` as ``**2`` and ``**3``, so that ``N²²`` becomes ``N**2**2``.
+_SUPERSCRIPTS = "⁰¹²³⁴⁵⁶⁷⁸⁹⁻⁺"
+#: One token of a unit expression, as far as :func:`check_unit_expression` cares.
+_UNIT_TOKEN = re.compile(rf"(?P<power>\*\*|\^)|(?P<superscript>[{_SUPERSCRIPTS}]+)"
+                         r"|(?P<number>(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?)"
+                         rf"|(?P<name>[^\W\d{_SUPERSCRIPTS}][^\W{_SUPERSCRIPTS}]*)|(?P<other>.)", re.DOTALL)
+#: What may follow ``**`` or ``^``: a number of at most three digits (``2``, ``-2``, ``0.5``) or a fraction ``(1/2)``.
+_EXPONENT = re.compile(r"\s*(?:[+\-−]?\s*\d{1,3}(?:\.\d{1,3})?(?![\d.])"
+                       r"|\(\s*[+\-−]?\s*\d{1,3}\s*(?:/\s*\d{1,3}\s*)?\))")
 
 
 class InputError(ValueError):
@@ -60,6 +71,43 @@ def header(name: str) -> str:
     return f"{name} [{si_unit(name)}]"
 
 
+def check_unit_expression(unit: str) -> None:
+    """Refuse a unit text whose evaluation could run away, before pint sees it.
+
+    pint evaluates the numbers of a unit expression as Python numbers, so ``10**10**10`` (or ``N²²²²²²``, which
+    reads as ``N**2**2**2**2**2**2``) would build an integer of billions of digits: the read would hang. Accepted:
+    exponents of at most three digits (``m**2``, ``s^-2``, ``m**0.5``, ``m**(1/2)``, ``m²``, ``m⁻¹``), none raised
+    again (``m**2**3``, ``m²²``), and no number outside an exponent but 1 (``1/s``; pint refuses other factors in a
+    unit anyway).
+
+    Raises:
+        InputError: a chained, long or non-numeric exponent, or a number other than 1.
+    """
+    pos, after_exponent = 0, False
+    while pos < len(unit):
+        token = _UNIT_TOKEN.match(unit, pos)
+        assert token is not None  # the last alternative matches any character
+        kind, text = token.lastgroup, token.group()
+        pos = token.end()
+        if kind in ("power", "superscript"):
+            if after_exponent:
+                raise InputError(f"unit {unit!r}: an exponent raised to a power again")
+            if kind == "superscript" and len(text) > (1 if set(text) & set("²³") else 3):
+                raise InputError(f"unit {unit!r}: the superscript exponent {text} is not accepted (write it with "
+                                 "** or ^)")
+            if kind == "power":
+                exponent = _EXPONENT.match(unit, pos)
+                if exponent is None:
+                    raise InputError(f"unit {unit!r}: an exponent must be a number of at most three digits or a "
+                                     "fraction such as (1/2)")
+                pos = exponent.end()
+            after_exponent = True
+        elif kind == "number" and float(text) != 1.0:
+            raise InputError(f"unit {unit!r}: the number {text} is not a unit (a unit carries no scaling factor)")
+        elif not text.isspace():
+            after_exponent = False
+
+
 def unit_factor(name: str, unit: str | None) -> float:
     """Factor converting a value of ``name`` in ``unit`` to SI (1 for ``None``: already SI).
 
@@ -69,9 +117,11 @@ def unit_factor(name: str, unit: str | None) -> float:
     if unit is None:
         return 1.0
     try:
+        check_unit_expression(unit)
         return float(to_si(np.ones(1), unit, si_unit(name))[0])
-    except (ValueError, pint.PintError, AttributeError, TypeError) as exc:
-        raise InputError(f"column {name!r}: unit {unit!r} cannot be converted to {si_unit(name)!r} ({exc})") from exc
+    except Exception as exc:  # pint raises many types on bad text (undefined, syntax, ZeroDivisionError, assertions)
+        why = " ".join(str(exc).split()) or type(exc).__name__
+        raise InputError(f"column {name!r}: unit {unit!r} cannot be converted to {si_unit(name)!r} ({why})") from exc
 
 
 def column_plan(headers: Sequence[object], variables: Sequence[str], units: Mapping[str, str] | None = None,
@@ -165,19 +215,46 @@ def read_table(path: str | Path) -> pd.DataFrame:
     """A CSV or Parquet file as a frame (headers kept as written; a scaletwin recording's units in ``attrs``).
 
     Raises:
-        FileNotFoundError: no such file.  InputError: another suffix than ``.csv``/``.parquet``.
+        FileNotFoundError: no such file.
+        InputError: another suffix than ``.csv``/``.parquet``, a file that cannot be read (truncated, binary,
+            malformed: the reader's message on one line) or a header written twice; the message starts with the path.
     """
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no such file: {path}")
     suffix = path.suffix.lower()
-    if suffix == ".csv":
-        return pd.read_csv(path)
-    if suffix != ".parquet":
-        raise InputError(f"{path.name}: use a .csv or .parquet file")
-    if METADATA_KEY in (pq.read_schema(path).metadata or {}):
+    if suffix not in (".csv", ".parquet"):
+        raise InputError(f"{path}: use a .csv or .parquet file")
+    try:
+        return _read_csv(path) if suffix == ".csv" else _read_parquet(path)
+    except InputError:
+        raise
+    except Exception as exc:  # pandas, pyarrow, codecs, the recording reader: whatever a damaged file raises
+        why = " ".join(str(exc).split())
+        raise InputError(f"{path}: cannot read the file ({type(exc).__name__}: {why})") from exc
+
+
+def _read_csv(path: Path) -> pd.DataFrame:
+    # pandas renames a repeated header ("F31 [N]" → "F31 [N].1"), which would hide the second column: the header
+    # row is read again as data to see the names as written
+    _check_unique(pd.read_csv(path, header=None, nrows=1, dtype=str).iloc[0].dropna().tolist(), path)
+    return pd.read_csv(path)
+
+
+def _read_parquet(path: Path) -> pd.DataFrame:
+    schema = pq.read_schema(path)
+    _check_unique(schema.names, path)
+    if METADATA_KEY in (schema.metadata or {}):
         return recording_frame(read_recording(path))
     return pd.read_parquet(path)
+
+
+def _check_unique(headers: Sequence[str], path: Path) -> None:
+    seen: set[str] = set()
+    for h in headers:
+        if h in seen:
+            raise InputError(f"{path}: column {h!r} appears more than once")
+        seen.add(h)
 
 
 def recording_frame(recording: Recording) -> pd.DataFrame:

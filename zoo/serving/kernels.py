@@ -4,15 +4,15 @@ Everything here works on plain arrays in SI with no validation, so that one row 
 
 * :class:`GroupPlan` evaluates the π groups (products of powers of columns) on a raw SI matrix or one row;
 * :class:`Features` turns target group values into the model's generalised log distortions
-  ``g_n = s_n·[asinh(π_n^s/2ε_n) − asinh(π_n^t/2ε_n)]`` (:class:`scaling.factors.LogDistortion`) for a fixed source
-  (one row, or one per target row), followed by the source's own ``s_n·asinh(π_n^s/2ε_n)`` for a model fitted with
-  ``include_source=True`` (2k features, as :meth:`LogDistortion.transform`);
+  ``g_n = s_n·[asinh(π_n^s/2ε_n) − asinh(π_n^t/2ε_n)]`` (:class:`scaling.dimensions.factors.LogDistortion`) for a fixed
+  source (one row, or one per target row), followed by the source's own ``s_n·asinh(π_n^s/2ε_n)`` for a model fitted
+  with ``include_source=True`` (2k features, as :meth:`LogDistortion.transform`);
 * a kernel maps ``g`` to ln δ1 (and, for the ensemble, its predictive variance): :class:`MLPKernel` (FFNN),
   :class:`EnsembleKernel` (deep ensemble; members stacked for one batched matmul per layer) and :class:`GRUKernel`
   (recurrent; ``step`` carries the hidden state). ``row`` is the single-row NumPy path (float64); ``batch`` runs the
   model's own torch modules over cache-sized chunks in inference mode (float32, as trained).
 
-δ1 = π1(source)/π1(target) as in :mod:`scaling.factors`; the kernels only compute ln δ1.
+δ1 = π1(source)/π1(target) as in :mod:`scaling.dimensions.factors`; the kernels only compute ln δ1.
 """
 
 from __future__ import annotations
@@ -23,8 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from scaling.factors import LogDistortion
-from scaling.groups import PiGroup
+from scaling.dimensions.factors import LogDistortion
+from scaling.dimensions.groups import PiGroup
 from scaling.models import DeepEnsemble, DeltaModel, GRUModel
 from scaling.models.ffnn import FFNN
 from zoo.serving.networks import NUMPY_ACTIVATIONS, SingleNet, TorchMLP, linears
@@ -71,7 +71,7 @@ class GroupPlan:
 
 @dataclass(frozen=True)
 class Features:
-    """The model inputs of :meth:`scaling.factors.LogDistortion.transform` for fixed source group values.
+    """The model inputs of :meth:`scaling.dimensions.factors.LogDistortion.transform` for fixed source group values.
 
     With ``h(π) = s·asinh(π/2ε)`` (dimensionless, like the groups π) the features of a target are
     ``g = h(π^s) − h(π^t)`` (k of them), followed by ``h(π^s)`` itself when the model was fitted with

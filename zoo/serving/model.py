@@ -1,7 +1,7 @@
 """``ScalingModel``: a verified δ1 checkpoint that scales the bucket force F21 from a source machine to a target.
 
-δ1 convention (:mod:`scaling.factors`): source = the calibrated machine (the paper's "model"; by default the ER12
-twin row the checkpoint was trained against, ``model.reference``), target = the machine to predict (the paper's
+δ1 convention (:mod:`scaling.dimensions.factors`): source = the calibrated machine (the paper's "model"; by default the
+ER12 twin row the checkpoint was trained against, ``model.reference``), target = the machine to predict (the paper's
 "prototype"). The model predicts δ1 = π1(source)/π1(target) from the target's distortions, then
 
     F21_target = F31_target · π1(source) / δ1          (Eq. 22, π1 = F21/F31)
@@ -10,15 +10,15 @@ so the target needs only measurable quantities (F31, cylinder forces, bucket mas
 accelerations or speeds; ``model.target_variables``), never F21 itself. The interval comes from the card
 (``card["interval"]``): held-out residual quantiles of ln δ1 for FFNN and GRU models, the ensemble's predictive
 spread for the deep ensemble, or (``learned-scale``, product-line checkpoints) a per-row width learned from what
-the served model knows of the row (:class:`scaling.conformal.RowInterval`; batch path with the risk computed, the
-pooled residual quantiles otherwise). Targets whose distortion features fall outside the training range stored on
+the served model knows of the row (:class:`scaling.evaluation.conformal.RowInterval`; batch path with the risk computed,
+the pooled residual quantiles otherwise). Targets whose distortion features fall outside the training range stored on
 the card raise an :class:`ExtrapolationWarning` (the prediction is still returned, flagged per row).
 
 Three paths share the same arithmetic: :meth:`ScalingModel.scale_force` (any table with units, batch),
 :meth:`ScalingModel.predict_row` (one row as floats in SI, the lean path) and :meth:`ScalingModel.stream`
 (row by row with the GRU's hidden state carried; see :mod:`zoo.serving.stream`).
 
-Models fitted with ``include_source=True`` (e.g. the product-line models of :mod:`scaling.product_line`, trained on
+Models fitted with ``include_source=True`` (e.g. the product-line models of :mod:`scaling.data.product_line`, trained on
 one matched source row per target row) also take the source's own features ``s_n·asinh(π_n^s/2ε_n)``: the served
 features are then 2k wide, as are the card's training range, and each target row is best given its own source row
 (n source rows for n targets in the batch path, ``source=`` on the row path). Such a model learnt δ1 as a function
@@ -39,12 +39,12 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import pandas as pd
 
-from scaling.conformal import RowInterval, RowRisk
-from scaling.evaluation import at_rest
-from scaling.factors import LogDistortion, scaled_variable
-from scaling.fitted import STATIC_STEPS, model_groups
-from scaling.groups import PiGroup
+from scaling.dimensions.factors import LogDistortion, scaled_variable
+from scaling.dimensions.groups import PiGroup
+from scaling.evaluation.conformal import RowInterval, RowRisk
+from scaling.evaluation.metrics import at_rest
 from scaling.models import DeltaModel
+from scaling.models.fitted import STATIC_STEPS, model_groups
 from zoo.serving.inputs import InputError, Rows, split_header, to_matrix
 from zoo.serving.kernels import CHUNK, EnsembleKernel, Features, GroupPlan, GRUKernel, kernel_for, normal_quantile
 from zoo.serving.parallel import map_ordered, resolve_threads
@@ -77,7 +77,7 @@ class ScaledForce:
     """Scaled force per target row (SI): ``force`` (e.g. F21, N) with its ``lower``/``upper`` interval at
     ``coverage``, the predicted ``delta1``, whether each row was ``extrapolated`` (outside the training range of
     the features) and, for checkpoints that carry an error score, the ``risk`` that the row is more than 10 % off
-    (:class:`~scaling.conformal.RowRisk`; None otherwise)."""
+    (:class:`~scaling.evaluation.conformal.RowRisk`; None otherwise)."""
 
     variable: str
     unit: str
@@ -266,8 +266,8 @@ class ScalingModel:
             hold: recurrent models only: treat each target row as the machine held still for ``hold`` steps and
                 report the last step. Otherwise a recurrent model runs the rows as time series: one per ``episode``
                 (sorted by ``t``) if the target has those columns, else one. A target made only of lone rows (every
-                episode one row long, as in :func:`scaling.validation.static_rows`) has no history to run, so each
-                row is held for :data:`~scaling.fitted.STATIC_STEPS` steps, as in the miniature validation.
+                episode one row long, as in :func:`scaling.evaluation.miniature.static_rows`) has no history to run, so
+                each row is held for :data:`~scaling.models.fitted.STATIC_STEPS` steps, as in the miniature validation.
             threads: cores for a large batch (default every usable core; see :meth:`predict_array`).
             risk: compute the per-row error score where the checkpoint has one (``out.risk``; a nearest-neighbour
                 query per row, about 20 000 rows/s per core); ``False`` skips it for throughput, and a
@@ -343,9 +343,9 @@ class ScalingModel:
         return ScaledForce(self.variable, self.unit, force, lo, hi, delta, outside, spread[0], method, row_risk)
 
     def _risk_features(self, x: np.ndarray, delta: np.ndarray) -> np.ndarray:
-        """The served features of every row (:meth:`scaling.conformal.RowRisk.features`): the novelty of its
-        features g, |ln δ1| and whether the bucket is at rest (:func:`scaling.evaluation.at_rest` on the target's
-        F31, m_b, x_b, a1 and α1; moving when the model does not take them)."""
+        """The served features of every row (:meth:`scaling.evaluation.conformal.RowRisk.features`): the novelty of its
+        features g, |ln δ1| and whether the bucket is at rest (:func:`scaling.evaluation.metrics.at_rest` on the
+        target's F31, m_b, x_b, a1 and α1; moving when the model does not take them)."""
         assert self.risk is not None
         g = np.concatenate([self._features_of(x[s:s + CHUNK], s)[0] for s in range(0, len(x), CHUNK)])
         col = {v: i for i, v in enumerate(self.target_variables)}
