@@ -32,7 +32,8 @@ from discrepancy.twin.start import StartEstimate, estimate_start
 LIFT = ("lift_extension", "boom_angle", "lift_speed")  # channels moved by the lift circuit
 TILT = ("tilt_extension", "bucket_pitch", "tilt_speed")  # ... by the tilt circuit
 OFFSET_AGREEMENT = 0.5  # the circuits' offsets may differ by this many control steps
-REFINE_START = 2  # re-estimates of the start after the offset seen against the one before
+REFINE_START = 2  # re-estimates of the start after the offset and sensor filter seen against the one before
+TOLERANCE = 0.25  # control steps: an offset or filter time constant that moved less is settled
 
 
 @dataclass(frozen=True)
@@ -82,22 +83,34 @@ def align(ep: EpisodeData, spec: TwinSpec, runner: Runner) -> tuple[EpisodeData,
         if not first.error:  # against the default start: a first guess, checked once the start is known
             guess = estimate_offset(ep.signals, first.signals, ep.dt)
             total = guess.offset if guess.significant else 0.0
-        for k in range(REFINE_START + 1):  # the start on the log so aligned, then the offset against that start
+        fit_tau = spec.sensor_tau  # the sensor filter the start is fitted through (a lag biases the pile's place)
+        for k in range(REFINE_START + 1):  # the start on the log so aligned, then offset and filter against it
             held = int(np.ceil(max(-total, 0.0) / ep.dt - 1e-9))  # rows a negative offset leaves unlogged
-            start = estimate_start(shift_signals(ep, total) if total else ep, runner.with_twin(spec), held)
+            shifted = shift_signals(ep, total) if total else ep
+            start = estimate_start(shifted, runner.with_twin(dataclasses.replace(spec, sensor_tau=fit_tau)), held)
             spec = dataclasses.replace(spec, start=start.options)
             again = runner.with_twin(spec).run_many(ep.commands, [Plan()])[0]
             if again.error or k == REFINE_START:
                 break
-            refined, undo = _offset(ep, again.signals, [])
+            if spec.sensor_tau == 0.0:  # a filter the twin does not declare: estimated against this start
+                rows = len(shifted)  # a positive offset trims the log's last rows (the replay's first rows stay)
+                tau = estimate_sensor_tau(shifted.signals, {c: v[:rows] for c, v in again.signals.items()}, ep.dt)
+                seen = _filtered(again, ep.dt, tau)
+            else:
+                tau, seen = fit_tau, again.signals
+            refined, undo = _offset(ep, seen, [])
             new_total = refined.offset if undo else 0.0
-            if abs(new_total - total) <= 0.25 * ep.dt:
+            if abs(new_total - total) <= TOLERANCE * ep.dt and abs(tau - fit_tau) <= TOLERANCE * ep.dt:
                 break
-            total = new_total
+            total, fit_tau = new_total, tau
         applied, offset = total != 0.0, (estimate_offset(ep.signals, again.signals, ep.dt) if total else None)
         assert start is not None
         notes.append(f"the log has no reset seed: start pose and pile estimated from it ({start.replays} replays; "
                      f"misfit {start.misfit_default:.3g} -> {start.misfit:.3g})")
+        if start.unidentified:
+            unseen = ", ".join(k.removeprefix("pile_").replace("_", " ") for k in start.unidentified)
+            notes.append(f"the log does not show the pile's {unseen} (the bucket never reaches it): left at the "
+                         "twin's nominal value")
     shifted = shift_signals(ep, total) if total else ep
     nominal = runner.with_twin(spec).run_many(shifted.commands, [Plan()])[0]
     if nominal.error:

@@ -32,6 +32,7 @@ def test_budget_object_marks_the_first_cut() -> None:
     assert b2.to_dict()["cut"] == "time"
 
 
+@pytest.mark.slow  # ~25-50 s on 2 cores; the time-budget test below covers the same cut-and-report path
 def test_tiny_replay_budget_stops_early_and_reports_it(scales, planted, twin) -> None:
     real = planted(_effects(scales)).noisy
     opts = dataclasses.replace(FAST, budget=40)
