@@ -27,6 +27,7 @@ import scaletwin_envs
 from scaletwin_envs.host import host_line
 from scaletwin_envs.parallel import Executor, make_executor
 from scaletwin_envs.rollout import run_episode
+from scaletwin_envs.specs.loader import LoaderSpec
 
 PRESET_SCALES: tuple[str, ...] = ("mini", "er12", "wa475")
 DEFAULT_SCALES: tuple[float | str, ...] = (*PRESET_SCALES, 0.3, 1.5)
@@ -49,7 +50,7 @@ class EpisodeTask:
 
     policy_name: str
     policy: Any
-    scale: float | str
+    scale: float | str | LoaderSpec
     soil: str
     seed: int
     law: str = "product_line"
@@ -57,7 +58,8 @@ class EpisodeTask:
 
 
 def run_task(task: EpisodeTask) -> dict[str, Any]:
-    """Run one episode; a row of KPIs (specific energy is NaN for an empty bucket)."""
+    """Run one episode; a row of KPIs (specific energy is NaN for an empty bucket). The row's ``scale`` is the preset
+    or length ratio as text, or the :class:`LoaderSpec`'s name."""
     env = gym.make(scaletwin_envs.ENV_ID, scale=task.scale, soil=task.soil, law=task.law, **task.env_kwargs)
     policy = task.policy
     if hasattr(policy, "reseed"):
@@ -69,18 +71,21 @@ def run_task(task: EpisodeTask) -> dict[str, Any]:
         env.close()
     if not np.isfinite(kpis["specific_energy"]):
         kpis["specific_energy"] = float("nan")
-    return {"policy": task.policy_name, "scale": str(task.scale), "length_ratio": ratio, "soil": task.soil,
+    label = task.scale.name if isinstance(task.scale, LoaderSpec) else str(task.scale)
+    return {"policy": task.policy_name, "scale": label, "length_ratio": ratio, "soil": task.soil,
             "seed": task.seed, **kpis}
 
 
-def evaluate_policies(policies: Mapping[str, Any], scales: Sequence[float | str] = DEFAULT_SCALES,
+def evaluate_policies(policies: Mapping[str, Any], scales: Sequence[float | str | LoaderSpec] = DEFAULT_SCALES,
                       soils: Sequence[str] = DEFAULT_SOILS, episodes: int = 5, seed: int = 0, *,
                       law: str = "product_line", env_kwargs: Mapping[str, Any] | None = None,
                       executor: Executor | str | int | None = None) -> pd.DataFrame:
     """Run ``episodes`` seeded episodes (seeds ``seed .. seed+episodes-1``) per policy, scale and soil.
 
     Args:
-        policies: name → policy object.  scales: presets or length ratios.  soils: soil names.
+        policies: name → policy object.  scales: presets, length ratios or :class:`LoaderSpec` machines (e.g.
+            :meth:`~scaletwin_envs.design_space.DesignSpace.sample`'s ``.spec``, rows labelled by its name).
+        soils: soil names.
         env_kwargs: further env arguments (default: no second-route force check, which KPIs do not need).
         executor: the executor seam's spec (``None``: all local cores, ``"serial"``, an int, an Executor).
 
