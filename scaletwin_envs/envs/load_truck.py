@@ -393,7 +393,7 @@ class WheelLoaderLoadTruckEnv(WheelLoaderDigEnv):
         held = capacity_fraction(self._bucket_pitch()) * self.dig.capacity
         if self._slump_step is not None:
             slump(self.pile.h, self._slump_step, SLUMP_TOL * self.length)
-            self.pile._top = max(self.pile._top, float(self.pile.h.max()))  # its cheap reach test's bound
+            self.pile.reshaped()
         if self.leg == 0:
             self._dig_in(cavity, held)
         excess = self.dig.load_volume - max(held, self.carry_back * self.dig.capacity)

@@ -79,6 +79,11 @@ class Pile:
         self.h[idx] = (self.h[idx] - heights).clip(min=0.0)
         return float(heights.sum() * self.dx * self.width)
 
+    def reshaped(self) -> None:
+        """Tell the pile its heights ``h`` were edited in place (e.g. a face slumped): keeps the bound of the cheap
+        :meth:`reaches` test."""
+        self._top = max(self._top, float(self.h.max()))
+
     def deposit(self, x: float, volume: float, spread: float) -> None:
         """Drop ``volume`` (m³) evenly over ``spread`` (m) around x; material off the grid is not kept."""
         sel = np.abs(self.x - x) <= max(spread / 2, self.dx)
