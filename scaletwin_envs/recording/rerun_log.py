@@ -32,7 +32,7 @@ from scaletwin_envs.recording.groups import GROUPS, dimensionless_groups
 from scaletwin_envs.recording.recorder import env_provenance
 from scaletwin_envs.recording.recording import Provenance, Recording
 from scaletwin_envs.recording.rerun_scene import SceneLogger, log_pile, send_load
-from scaletwin_envs.recording.schema import SCHEMA_VERSION
+from scaletwin_envs.recording.schema import SCHEMA_VERSION, TRUCK_UNITS
 from scaletwin_envs.signal_units import SIGNAL_UNITS
 
 APP_ID = "scaletwin"
@@ -51,15 +51,23 @@ SIGNAL_PANELS: dict[str, tuple[str, ...]] = {
     "Soil force": ("R_x", "R_z"),
     "Cylinders": ("lift_extension", "tilt_extension", "lift_speed", "tilt_speed", "p_lift", "p_tilt"),
 }
+#: The tab of a loading-cycle recording (``WheelLoaderLoadTruck-v0``): the truck's payload against its target, the
+#: material returned to the pile, the payload's centre of mass and the passes.
+TRUCK_PANEL: dict[str, tuple[str, ...]] = {
+    "Truck": ("truck_payload", "target_payload", "returned_mass", "truck_com_x", "truck_com_z", "passes"),
+}
 
 
-def panel_plots(units: Mapping[str, str] = SIGNAL_UNITS) -> dict[str, list[tuple[str, str, tuple[str, ...]]]]:
+def panel_plots(units: Mapping[str, str] = SIGNAL_UNITS,
+                truck: bool = False) -> dict[str, list[tuple[str, str, tuple[str, ...]]]]:
     """The plots of each tab: (plot name, unit, entity paths), one plot per unit, in the order of first use.
 
     A tab of :data:`SIGNAL_PANELS` whose signals share a unit is one plot; otherwise it is split by unit, so a
-    pressure never flattens a stroke on a shared axis. The force tabs get a second plot of route 2 − route 1."""
+    pressure never flattens a stroke on a shared axis. The force tabs get a second plot of route 2 − route 1.
+    ``truck``: add the :data:`TRUCK_PANEL` tab (loading-cycle recordings)."""
     out: dict[str, list[tuple[str, str, tuple[str, ...]]]] = {}
-    for title, names in SIGNAL_PANELS.items():
+    units = {**TRUCK_UNITS, **units} if truck else units
+    for title, names in {**SIGNAL_PANELS, **(TRUCK_PANEL if truck else {})}.items():
         by_unit: dict[str, list[str]] = {}
         for n in names:
             by_unit.setdefault(units.get(n, "?"), []).append(f"{SIGNALS_PATH}/{n}")
@@ -72,10 +80,11 @@ def panel_plots(units: Mapping[str, str] = SIGNAL_UNITS) -> dict[str, list[tuple
     return out
 
 
-def blueprint() -> rrb.Blueprint:
-    """Default layout: the 3D scene and phases on the left, tabs of signal plots (one per unit) on the right."""
+def blueprint(truck: bool = False) -> rrb.Blueprint:
+    """Default layout: the 3D scene and phases on the left, tabs of signal plots (one per unit) on the right; with
+    ``truck`` the loading cycle's truck tab too."""
     tabs: list[Any] = []
-    for title, plots in panel_plots().items():
+    for title, plots in panel_plots(truck=truck).items():
         views = [rrb.TimeSeriesView(origin=SIGNALS_PATH, contents=list(paths), name=name) for name, _, paths in plots]
         tabs.append(views[0] if len(views) == 1 else rrb.Vertical(*views, name=title))
     tabs.append(rrb.TimeSeriesView(origin=GROUPS_PATH, name="Dimensionless groups"))
@@ -85,13 +94,15 @@ def blueprint() -> rrb.Blueprint:
     return rrb.Blueprint(rrb.Horizontal(left, rrb.Tabs(*tabs), column_shares=[1, 1]), collapse_panels=True)
 
 
-def open_stream(path: str | Path | None = None, *, spawn: bool = False, name: str | None = None) -> rr.RecordingStream:
-    """A new recording stream that saves to ``path`` and/or streams to a spawned viewer, with the layout."""
+def open_stream(path: str | Path | None = None, *, spawn: bool = False, name: str | None = None,
+                truck: bool = False) -> rr.RecordingStream:
+    """A new recording stream that saves to ``path`` and/or streams to a spawned viewer, with the layout
+    (``truck``: of a loading-cycle recording)."""
     rec = rr.RecordingStream(APP_ID)
     if path is not None:
-        rec.save(path, default_blueprint=blueprint())
+        rec.save(path, default_blueprint=blueprint(truck))
     if spawn:
-        rec.spawn(default_blueprint=blueprint())
+        rec.spawn(default_blueprint=blueprint(truck))
     if name:
         rec.send_recording_name(name)
     return rec
@@ -268,7 +279,7 @@ def send_recording(rec: rr.RecordingStream, recording: Recording) -> None:
     data = recording.data
     spec = recording.provenance.machine_spec()
     sender = SignalSender(rec, recording.units, spec.characteristic_length if spec is not None else None)
-    names = [c for c in SIGNAL_UNITS if c in data.columns and not data[c].isna().all()]
+    names = [c for c in (*SIGNAL_UNITS, *TRUCK_UNITS) if c in data.columns and not data[c].isna().all()]
     phases = [str(p) for p in data["phase"]] if "phase" in data.columns else None
     sender.send(data["step"].to_numpy(), data["time"].to_numpy(dtype=np.float64),
                 {n: data[n].to_numpy(dtype=np.float64) for n in names}, phases)
@@ -286,7 +297,7 @@ def log_episode_rrd(recording: Recording, path: str | Path, env: gym.Env | None 
     prov = recording.provenance
     name = f"{(prov.machine or {}).get('name', 'external')} seed {prov.seed}"
     with atomic_path(path) as tmp:
-        rec = open_stream(tmp, name=name)
+        rec = open_stream(tmp, name=name, truck="truck_payload" in recording.data.columns)
         send_provenance(rec, prov)
         send_recording(rec, recording)
         if scene and prov.seed is not None and (env is not None or prov.machine is not None):

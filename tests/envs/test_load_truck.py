@@ -234,6 +234,25 @@ def test_stepping_after_a_sim_error_raises() -> None:
     assert info["sim_error"] is None
 
 
+def test_rerun_log_of_a_cycle_plots_the_truck(tmp_path: Path) -> None:
+    """A short loading-cycle recording logged to an .rrd: one truck-payload sample per step and a "Truck" tab in the
+    stored layout; a dig recording's layout has no such tab."""
+    from rerun.chunk import RrdReader
+
+    from scaletwin_envs.recording.rerun_log import log_episode_rrd, panel_plots
+
+    rec = record_episode(gym.make(ENV_ID, scale="mini"), LoadingCyclePolicy(), seed=0, max_steps=20)
+    path = log_episode_rrd(rec, tmp_path / "cycle.rrd", scene=False)
+    rows = sum(c.num_rows for c in RrdReader(path).stream().collect().stream()
+               if c.entity_path == "/signals/truck_payload" and not c.is_static)
+    assert rows == len(rec) == 20
+    reader = RrdReader(path)
+    names = {str(c.to_record_batch().column(n)[0].as_py()) for c in reader.stream(store=reader.blueprints()[0])
+             .collect().stream() for n in c.to_record_batch().schema.names if n.endswith(":display_name")}
+    assert any("Truck" in n for n in names), names
+    assert "Truck" in panel_plots(truck=True) and "Truck" not in panel_plots()
+
+
 def test_a_recorded_episode_keeps_the_truck_columns(tmp_path: Path) -> None:
     """A short loading-cycle episode recorded to Parquet and read back: the truck's payload (kg) and the passes are
     columns, the load phases are kept; a dig-env recording has no truck columns."""
