@@ -76,6 +76,16 @@ def machine_level_quantile(scores: np.ndarray, groups: np.ndarray, level: float,
     return float(np.quantile(per_machine, machine_share))
 
 
+def calibration_bound(scores: np.ndarray, groups: np.ndarray, level: float, machine_share: float | None, *,
+                      finite_sample: bool = False) -> float:
+    """The bound on ``scores`` that holds ``level`` of the rows: of an average machine (``machine_share`` None,
+    :func:`group_weighted_quantile`, with its ``finite_sample`` option) or of ``machine_share`` of the machines
+    (:func:`machine_level_quantile`)."""
+    if machine_share is None:
+        return group_weighted_quantile(scores, groups, level, finite_sample=finite_sample)
+    return machine_level_quantile(scores, groups, level, machine_share)
+
+
 def machine_weights(groups: np.ndarray) -> np.ndarray:
     """Row weights summing to 1 with every group (machine) weighing the same, whatever its row count."""
     _, inverse, counts = np.unique(np.asarray(groups).astype(str), return_inverse=True, return_counts=True)
@@ -134,12 +144,8 @@ class GroupConformal:
             raise ValueError("residual, scale and groups must have one entry per row")
         if np.any(sc[np.isfinite(sc)] <= 0):
             raise ValueError("scales must be > 0")
-        if self.machine_share is None:
-            self.quantile_ = group_weighted_quantile(np.abs(r) / sc, np.asarray(groups), self.coverage,
-                                                     finite_sample=self.finite_sample)
-        else:
-            self.quantile_ = machine_level_quantile(np.abs(r) / sc, np.asarray(groups), self.coverage,
-                                                    self.machine_share)
+        self.quantile_ = calibration_bound(np.abs(r) / sc, np.asarray(groups), self.coverage, self.machine_share,
+                                           finite_sample=self.finite_sample)
         self.n_groups_ = len(set(np.asarray(groups).astype(str)))
         return self
 
@@ -373,10 +379,8 @@ class ErrorScore:
             return value, grad
 
         self.coef_ = minimize(loss, np.zeros(z.shape[1]), jac=True, method="L-BFGS-B").x
-        if self.machine_share is None or np.unique(g).size < 2:
-            self.threshold_ = group_weighted_quantile(self.score(x), g, self.warn_quantile)
-        else:
-            self.threshold_ = machine_level_quantile(self.score(x), g, self.warn_quantile, self.machine_share)
+        share = self.machine_share if np.unique(g).size >= 2 else None  # one machine: nothing to bound per machine
+        self.threshold_ = calibration_bound(self.score(x), g, self.warn_quantile, share)
         return self
 
     def state(self) -> dict[str, Any]:

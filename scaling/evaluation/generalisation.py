@@ -345,25 +345,26 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
             lo, hi = spread_calibrators[name].interval(p.log_pred, p.scale)
             inside_spread = (p.pairs.log_delta >= lo) & (p.pairs.log_delta <= hi)
             inside_served = np.full(len(p.err), np.nan)
-            if name in row_intervals and p.g is not None:
-                half = row_intervals[name].half_width(
-                    RowRisk.features(row_risks[name].novelty, p.g, p.log_pred, p.features[:, -1]), 0.9)
+            served_features = None  # what a served checkpoint knows of each row: one novelty query per row
+            if name in row_risks and p.g is not None:
+                served_features = RowRisk.features(row_risks[name].novelty, p.g, p.log_pred, p.features[:, -1])
+                half = row_intervals[name].half_width(served_features, 0.9)
                 inside_served = (np.abs(p.pairs.log_delta - p.log_pred) <= half).astype(float)
             results.append(_summarise(m, name, source_of[m] if name != "direct-Pi (ER12)" else split.reference,
                                       p.err, p.kind, p.pred, p.f21, inside, inside_spread, inside_served))
             scorer = error_scores.get(name)
             risk = scorer.score(p.features) if scorer else np.full(len(p.err), np.nan)
-            warn_share.setdefault(name, {})[m] = float(np.mean(scorer.warns(p.features))) if scorer else float("nan")
+            warn_share.setdefault(name, {})[m] = float(np.mean(scorer.above(risk))) if scorer else float("nan")
             bucket = auroc_rows.setdefault(name, ([], [], [], []))
             bucket[0].append(np.full(len(p.err), machine_score[m]))
             bucket[1].append(p.scale)
             bucket[2].append(risk)
             bucket[3].append(p.err > MISS)
-            if name in row_risks and p.g is not None:
-                args = (p.g, p.log_pred, p.features[:, -1])
-                served.setdefault(name, ([], []))[0].append(row_risks[name].risk(*args))
+            if served_features is not None:
+                served_risk = row_risks[name].score.score(served_features)
+                served.setdefault(name, ([], []))[0].append(served_risk)
                 served[name][1].append(p.err > MISS)
-                warned = row_risks[name].warns(*args)
+                warned = row_risks[name].score.above(served_risk)
                 served_warn_share.setdefault(name, {})[m] = float(np.mean(warned))
                 fine = p.err <= MISS
                 served_false_alarms.setdefault(name, {})[m] = float(np.mean(warned[fine])) if fine.any() else 0.0
