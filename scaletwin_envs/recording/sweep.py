@@ -14,6 +14,7 @@ each worker writes to its own node's disk, which the sweep detects and reports a
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import importlib
@@ -51,7 +52,7 @@ from scaletwin_envs.recording.atomic import (
 from scaletwin_envs.recording.recorder import record_episode
 from scaletwin_envs.recording.recording import Recording, read_recording, recording_from_arrow
 from scaletwin_envs.recording.schema import SCHEMA_VERSION
-from scaletwin_envs.specs.loader import LoaderSpec
+from scaletwin_envs.specs.loader import LoaderSpec, make_loader
 
 MANIFEST = "manifest.json"
 SERIAL_MAX = 8  # sweeps with at most this many episodes to run go serially when no executor is given
@@ -105,8 +106,17 @@ class EpisodeTask:
         return LoaderSpec.from_dict(self.scale) if isinstance(self.scale, Mapping) else self.scale
 
     def key(self) -> str:
-        """Stable hash of the parameters and the recording schema version (16 hex digits)."""
-        text = json.dumps({**self.params(), "schema_version": SCHEMA_VERSION}, sort_keys=True)
+        """Stable hash of the parameters, the machine they name and the recording schema version (16 hex digits).
+
+        A preset name or a length ratio names a machine through the presets, which change between versions: the
+        key holds that machine's specification too, so a resumed sweep never keeps an episode of an older preset
+        (a dictionary ``scale`` is the specification already)."""
+        params = self.params()
+        if not isinstance(self.scale, Mapping):
+            # no such machine (ValueError): the episode fails with make_loader's message and is reported failed
+            with contextlib.suppress(ValueError):
+                params["machine_spec"] = make_loader(self.scale, law=self.law).to_dict()
+        text = json.dumps({**params, "schema_version": SCHEMA_VERSION}, sort_keys=True)
         return hashlib.sha256(text.encode()).hexdigest()[:16]
 
     @property

@@ -6,7 +6,9 @@ Sources: [paper] Karanfil & Ravani, "Scaling Digital Twin Models" (shared/paper)
 
 from __future__ import annotations
 
-from scaletwin_envs.specs.loader import CylinderSpec, LinkageGeometry, LoaderSpec, MassProperties, scale_spec
+import math
+
+from scaletwin_envs.specs.loader import CylinderSpec, LinkageGeometry, LoaderSpec, MassProperties
 
 # ER12 linkage in the reference pose (m). *estimate*: laid out for a 3.3 t Z-bar loader (2.3 m boom, ~2.9 m
 # hinge-pin height at full lift, 0.53 m³ heaped bucket of 1.5 m width) and checked for assembly over the
@@ -45,13 +47,27 @@ ER12 = LoaderSpec(
 
 _MINI_LENGTH = 1.0 / 7.0  # Kabolite ~1:14 copy of a ~2x-ER12 Z-bar loader [physics]; linkage proportions *estimate*
 
+# The miniature's own layout (m), *estimate*: an RC copy keeps the look of its full-size original but not its
+# pin proportions (pins sized for the material, cylinders for the parts on the market). Relative to the ER12
+# layout × 1/7, in boom lengths L: bell-crank pivot 0.02 L forward, its lower arm 0.02 L shorter, link B's bucket
+# pin 0.02 L back, tilt cylinder's frame pin 0.03 L lower, lift cylinder's boom pin 0.02 L higher and frame pin
+# 0.03 L forward. Assembles over the dig workspace, tilt force ratio 0.85–1.07 over both strokes (ER12 1.02–1.33),
+# breakout / weight 0.95; at rest with its rated load F21 / weight is 3–4 % below the ER12 layout × 1/7
+# (scaletwin_envs.design_space.check_design; tests/envs/test_presets.py).
+MINI_GEOMETRY = LinkageGeometry(
+    boom_pivot=(0.0, 0.2143), pin_O=(0.2786, 0.0429), bell_crank_pivot=(0.1708, 0.1571),
+    bell_crank_top=(0.1357, 0.2314), bell_crank_bottom=(0.1929, 0.0820), pin_21=(0.2620, 0.0886),
+    lift_frame_pin=(-0.0259, 0.0786), lift_boom_pin=(0.1571, 0.1037), tilt_frame_pin=(-0.0214, 0.2273),
+    bucket_heel=(0.2886, 0.0), bucket_edge=(0.3886, 0.0), bucket_back_top=(0.2843, 0.0943), bucket_width=0.2143,
+)
+
 MINI = LoaderSpec(
-    name="mini", scale=_MINI_LENGTH, geometry=ER12_GEOMETRY.scaled(_MINI_LENGTH),
+    name="mini", scale=_MINI_LENGTH, geometry=MINI_GEOMETRY,
     masses=MassProperties(bucket=0.23 + 0.09, link_b=0.01, bell_crank=0.04, boom=0.32,
                           chassis=11.0 - (0.32 + 0.01 + 0.04 + 0.32 + 0.02 + 0.01 + 0.02 + 0.02)),
-    lift=CylinderSpec(bore=0.010, rod_diameter=0.005, closed_length=1.28 * _MINI_LENGTH, stroke=0.90 * _MINI_LENGTH,
+    lift=CylinderSpec(bore=0.010, rod_diameter=0.005, closed_length=0.1739, stroke=0.1293,
                       relief_pressure=2.5e6, pump_flow=6.7e-6, barrel_mass=0.02, rod_mass=0.01, count=2),
-    tilt=CylinderSpec(bore=0.012, rod_diameter=0.006, closed_length=0.92 * _MINI_LENGTH, stroke=0.45 * _MINI_LENGTH,
+    tilt=CylinderSpec(bore=0.012, rod_diameter=0.006, closed_length=0.1347, stroke=0.0566,
                       relief_pressure=2.5e6, pump_flow=4.8e-6, barrel_mass=0.02, rod_mass=0.02),
     travel_speed=0.4, traction_coefficient=0.6, rated_load=4.0,
     provenance={
@@ -60,34 +76,51 @@ MINI = LoaderSpec(
         "cylinder_masses": "rods A1 0.02 / A2 0.01, B1 0.02 / B2 0.02 kg [paper, Table 2]",
         "rated_load": "4 kg maximum test load [paper, section 4]",
         "relief_pressure": "2.5 MPa *estimate* [physics: 1.5-3 MPa hobby hydraulics]",
-        "geometry": "ER12 layout x 1/7 *estimate*",
+        "geometry": "its own layout *estimate* (see MINI_GEOMETRY)",
+        "cylinders_lengths": "closed lengths and strokes fitted to MINI_GEOMETRY (see MINI_GEOMETRY)",
         "cylinders": "10/12 mm bores, RC pump ~0.4 L/min *estimate*",
         "travel_speed": "0.4 m/s *estimate*",
     },
 )
 
-_WA_LENGTH = 2.0  # *estimate*: WA475 boom about twice the ER12's
-_WA_BUCKET = (4.7 / (0.528 * _WA_LENGTH**3)) ** (1 / 3)  # 4.7 m3 test bucket [physics]
-_wa_factors = {"length": _WA_LENGTH, "mass": 26000.0 / 3300.0, "pressure": 32.0 / 17.0, "bore": 1.0,
-               "cylinder_speed": 1.0, "travel_speed": 2.0 / 1.5, "bucket_size": _WA_BUCKET, "traction": 1.0}
-_wa = scale_spec(ER12, _wa_factors, "wa475", _WA_LENGTH)
+_WA_LENGTH = 2.0  # *estimate*: WA475 boom about twice the ER12's (operating mass 26 t / 3.3 t = 2.0³)
+
+# The WA475's own layout (m), *estimate*: the large-loader pattern of lift cylinders anchored low on the front
+# frame and far out on the boom (more lift force per bore) and a longer upper bell-crank arm (more breakout per
+# tilt bore). Relative to the ER12 layout × 2, in boom lengths L: lift frame pin 0.03 L lower, lift boom pin 0.03 L
+# forward, bell-crank top 0.03 L higher, tilt frame pin 0.02 L higher, link B's bucket pin 0.015 L back. Bucket:
+# the 4.7 m³ test bucket [physics]. Assembles over the dig workspace, tilt force ratio 1.19–1.65 over both strokes
+# (ER12 1.02–1.33), breakout / weight 0.75 (physics.md: 0.7–1.0 for 3–20 t, lower above); at rest with its rated
+# load F21 / weight is within −3 to +3 % of the ER12 layout × 2 (link B's line of action barely turns), while the
+# cylinder forces that hold that load differ (tests/envs/test_presets.py).
+WA475_GEOMETRY = LinkageGeometry(
+    boom_pivot=(0.0, 3.0), pin_O=(3.9, 0.6), bell_crank_pivot=(2.3, 2.2), bell_crank_top=(1.9, 3.377),
+    bell_crank_bottom=(2.7, 1.24), pin_21=(3.691, 1.24), lift_frame_pin=(-0.5, 0.963), lift_boom_pin=(2.337, 1.36),
+    tilt_frame_pin=(-0.3, 3.412), bucket_heel=(4.045, 0.0), bucket_edge=(5.496, 0.0), bucket_back_top=(3.983, 1.368),
+    bucket_width=3.109,
+)
+_WA_MASS = 26000.0 / 3300.0  # component masses = ER12's × operating-mass ratio *estimate*
+_WA_LIFT_BORE, _WA_LIFT_STROKE = 0.14, 1.892  # m; stroke fitted to WA475_GEOMETRY (ER12 raise angle)
+_WA_RAISE_TIME = 6.0  # s *estimate*, inside the 5–7 s band of physics.md (cycle times nearly constant in seconds)
 
 WA475 = LoaderSpec(
-    name="wa475", scale=_WA_LENGTH, geometry=_wa.geometry, masses=_wa.masses,
-    lift=CylinderSpec(bore=0.14, rod_diameter=0.08, closed_length=1.28 * _WA_LENGTH, stroke=0.90 * _WA_LENGTH,
-                      relief_pressure=32e6, pump_flow=6.0e-3, barrel_mass=_wa.lift.barrel_mass,
-                      rod_mass=_wa.lift.rod_mass, count=2),
-    tilt=CylinderSpec(bore=0.14, rod_diameter=0.08, closed_length=0.92 * _WA_LENGTH, stroke=0.45 * _WA_LENGTH,
-                      relief_pressure=32e6, pump_flow=6.0e-3, barrel_mass=_wa.tilt.barrel_mass,
-                      rod_mass=_wa.tilt.rod_mass),
+    name="wa475", scale=_WA_LENGTH, geometry=WA475_GEOMETRY, masses=ER12.masses.scaled(_WA_MASS),
+    lift=CylinderSpec(bore=_WA_LIFT_BORE, rod_diameter=0.08, closed_length=2.704, stroke=_WA_LIFT_STROKE,
+                      relief_pressure=32e6, pump_flow=2 * math.pi * _WA_LIFT_BORE**2 / 4 * _WA_LIFT_STROKE
+                      / _WA_RAISE_TIME, barrel_mass=ER12.lift.barrel_mass * _WA_MASS,
+                      rod_mass=ER12.lift.rod_mass * _WA_MASS, count=2),
+    tilt=CylinderSpec(bore=0.14, rod_diameter=0.08, closed_length=1.760, stroke=1.020, relief_pressure=32e6,
+                      pump_flow=6.0e-3, barrel_mass=ER12.tilt.barrel_mass * _WA_MASS,
+                      rod_mass=ER12.tilt.rod_mass * _WA_MASS),
     travel_speed=2.0, traction_coefficient=0.6, rated_load=8500.0,
     provenance={
         "operating_mass": "~26 000 kg [paper, section 2.6]; component masses = ER12 x 26000/3300 *estimate*",
         "bucket": "4.7 m3 test bucket [physics: WA475-10 field test]",
         "rated_load": "8.5 t *estimate* [physics: 8-9 t, <= 50 % of tipping load]",
         "relief_pressure": "32 MPa *estimate* [physics: 30-35 MPa]",
-        "geometry": "ER12 layout x 2.0 *estimate*",
-        "cylinders": "2x140 / 140 mm bores, ~360 L/min *estimate*",
+        "geometry": "its own layout *estimate* (see WA475_GEOMETRY)",
+        "cylinders": "2x140 / 140 mm bores *estimate*; lift flow set for a 6.0 s full raise (5-7 s band [physics]), "
+                     "tilt ~360 L/min *estimate*; closed lengths and strokes fitted to WA475_GEOMETRY",
         "travel_speed": "2.0 m/s *estimate*",
     },
 )

@@ -224,3 +224,21 @@ def test_executor_options_of_the_commands(tmp_path, capsys, monkeypatch):
     assert main(["dataset", str(tmp_path), "--no-progress", "--ray-address", "auto"]) == 2
     assert 'pip install "scaletwin[ray]"' in capsys.readouterr().err
     assert not list(tmp_path.iterdir())
+
+
+def test_episode_key_follows_the_machine_a_preset_names(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A resumed sweep must not keep an episode recorded with an older version of a preset: the task's key (its
+    file name) holds the machine the name stood for, and so does a length ratio (scaled from the ER12 preset)."""
+    from dataclasses import replace
+
+    from scaletwin_envs.specs import presets
+
+    task = EpisodeTask(scale="wa475", soil="gravel", pile_distance=0.5, pile_height=0.6, seed=0)
+    ratio = EpisodeTask(scale=1.5, soil="gravel", pile_distance=0.5, pile_height=0.6, seed=0)
+    before = task.key(), ratio.key()
+    assert task.key() == before[0]  # stable
+    wa, er = presets.PRESETS["wa475"], presets.PRESETS["er12"]
+    monkeypatch.setitem(presets.PRESETS, "wa475", replace(wa, travel_speed=wa.travel_speed * 1.1))
+    monkeypatch.setitem(presets.PRESETS, "er12", replace(er, traction_coefficient=0.55))
+    assert task.key() != before[0]
+    assert ratio.key() != before[1]

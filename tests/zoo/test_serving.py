@@ -177,6 +177,32 @@ def test_row_path_matches_batch(ffnn: zoo.ScalingModel, ensemble: zoo.ScalingMod
         assert all(isinstance(v, float) for v in single[0].tolist())
 
 
+@pytest.mark.parametrize("name", ["ffnn-eq10", "statics-pl"])
+def test_folded_row_path_matches_the_feature_path(name: str):
+    """The bound-source row path (source folded into the first layer, range check on asinh π) gives the force,
+    interval, δ1 and extrapolation flag of the plain path (features, standardise, MLP), here reached by passing the
+    same source row explicitly; ``statics-pl`` takes the source's own features too."""
+    model = zoo.load(name)
+    assert model._bound_row is not None
+    frame = check_rows(zoo.resolve(name)[0]).rename(columns=lambda c: split_header(c)[0])
+    x = _si(model, frame)[:60]
+    far = []  # each target variable far beyond anything trained on, one at a time
+    for j in range(x.shape[1]):
+        r = x[0].copy()
+        r[j] *= 1e3
+        far.append(r)
+    src = model.reference[list(model.source_variables)].to_numpy(float)
+    flagged = 0
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", zoo.ExtrapolationWarning)
+        for r in [*x, *far]:
+            folded, plain = model.row(r, None), model.row(r, None, src)
+            np.testing.assert_allclose(folded[:4], plain[:4], rtol=1e-11)
+            assert folded[4] == plain[4]
+            flagged += folded[4]
+    assert flagged >= 2
+
+
 def test_batch_on_several_threads_matches_one(ffnn: zoo.ScalingModel, ensemble: zoo.ScalingModel,
                                               gru: zoo.ScalingModel, rows: pd.DataFrame):
     """Chunks run on threads give the rows back in order, identical to one thread; torch's setting is restored."""

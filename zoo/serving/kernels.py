@@ -18,7 +18,7 @@ Everything here works on plain arrays in SI with no validation, so that one row 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -145,6 +145,60 @@ class MLPKernel(SingleNet):
         return self.y_mean + self.y_std * self.torch_mlp(g)[:, 0], None
 
 
+@dataclass(frozen=True)
+class BoundMLPRow:
+    """The one-row path of an :class:`MLPKernel` with one bound source, folded into its first layer.
+
+    With the source fixed, the features are ``g = h(π^s) − s·u`` (and ``h(π^s)`` itself for an ``include_source``
+    model) with ``u = asinh(π^t/2ε)``, and the standardisation is affine, so the first layer's pre-activation is
+    ``c + u @ A``: ``c`` holds the source's part (its constant features included) and the standardisation, ``A``
+    the sign and the scale of each target group. The training-range check on ``g`` becomes bounds on ``u``
+    (``asinh`` is increasing, ``s = ±1``). Same arithmetic as ``features`` + :meth:`MLPKernel.row` in float64 up
+    to rounding (tests/zoo/test_serving.py), at about half the per-call cost: a row costs its NumPy calls.
+    """
+
+    scale: np.ndarray  # 1/(2ε) per target group, (k,)
+    const: np.ndarray  # first-layer pre-activation of u = 0, (width,)
+    weight: np.ndarray  # (k, width)
+    hidden: tuple[tuple[np.ndarray, np.ndarray], ...]  # the remaining layers (w, b)
+    act: Callable[[np.ndarray], np.ndarray]  # the NumPy activation
+    y_mean: float
+    y_std: float
+    u_lo: np.ndarray  # u inside [u_lo, u_hi] <=> the target's features inside the training range
+    u_hi: np.ndarray
+    source_outside: bool  # the bound source's own features (include_source) already outside the range
+
+    @classmethod
+    def build(cls, kernel: MLPKernel, features: Features, g_lo: np.ndarray, g_hi: np.ndarray) -> BoundMLPRow | None:
+        """The folded row path, or ``None`` where it does not apply (several sources, no NumPy activation)."""
+        if kernel.act is None or features.h_source.ndim != 1:
+            return None
+        k = len(features.scale)
+        h_s, sign = features.h_source, features.sign
+        (w0, b0), *rest = kernel.layers
+        xm, xs = kernel.x_mean, kernel.x_std
+        const = b0 + ((h_s - xm[:k]) / xs[:k]) @ w0[:k]
+        source_outside = False
+        if features.include_source:
+            const = const + ((h_s - xm[k:]) / xs[k:]) @ w0[k:]
+            source_outside = bool(((h_s < g_lo[k:]) | (h_s > g_hi[k:])).any())
+        weight = -(sign / xs[:k])[:, None] * w0[:k]
+        # g = h_s − s·u in [lo, hi]  <=>  s·u in [h_s − hi, h_s − lo]
+        a, b = h_s - g_hi[:k], h_s - g_lo[:k]
+        u_lo, u_hi = np.where(sign > 0, a, -b), np.where(sign > 0, b, -a)
+        return cls(features.scale, const, weight, tuple(rest), kernel.act, kernel.y_mean, kernel.y_std, u_lo, u_hi,
+                   source_outside)
+
+    def __call__(self, pi_target: np.ndarray) -> tuple[float, bool]:
+        """(ln δ1, outside the training range) of one target's group values ``pi_target`` (k,)."""
+        u = np.arcsinh(pi_target * self.scale)
+        h = self.const + u @ self.weight
+        for w, b in self.hidden:  # an activation after every layer but the last
+            h = self.act(h) @ w + b
+        outside = self.source_outside or bool((u < self.u_lo).any() or (u > self.u_hi).any())
+        return self.y_mean + self.y_std * float(h[0]), outside
+
+
 class EnsembleKernel:
     """A :class:`DeepEnsemble`: K Gaussian MLPs, each with its own standardisers; mixture mean and variance."""
 
@@ -224,5 +278,5 @@ def normal_quantile(coverage: float) -> float:
     return NormalDist().inv_cdf(0.5 + coverage / 2)
 
 
-__all__ = ["CHUNK", "EnsembleKernel", "Features", "GRUKernel", "GroupPlan", "Kernel", "MLPKernel", "kernel_for",
-           "normal_quantile"]
+__all__ = ["CHUNK", "BoundMLPRow", "EnsembleKernel", "Features", "GRUKernel", "GroupPlan", "Kernel", "MLPKernel",
+           "kernel_for", "normal_quantile"]

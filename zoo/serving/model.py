@@ -46,7 +46,17 @@ from scaling.evaluation.metrics import at_rest
 from scaling.models import DeltaModel
 from scaling.models.fitted import STATIC_STEPS, model_groups
 from zoo.serving.inputs import InputError, Rows, split_header, to_matrix
-from zoo.serving.kernels import CHUNK, EnsembleKernel, Features, GroupPlan, GRUKernel, kernel_for, normal_quantile
+from zoo.serving.kernels import (
+    CHUNK,
+    BoundMLPRow,
+    EnsembleKernel,
+    Features,
+    GroupPlan,
+    GRUKernel,
+    MLPKernel,
+    kernel_for,
+    normal_quantile,
+)
 from zoo.serving.parallel import map_ordered, resolve_threads
 
 if TYPE_CHECKING:
@@ -199,6 +209,9 @@ class ScalingModel:
                              f"π1 = {pi1[:3].tolist()}")
         one = len(x) == 1
         self._features = Features.build(self._transform, vals[0, :-1] if one else vals[:, :-1])
+        kernel = self.kernel
+        self._bound_row = (BoundMLPRow.build(kernel, self._features, self._g_lo, self._g_hi)
+                           if one and isinstance(kernel, MLPKernel) else None)
         self._pi1_source = float(pi1[0]) if one else pi1
         self._n_source = len(x)
         if self._h_reference is not None:
@@ -443,24 +456,30 @@ class ScalingModel:
         except ZeroDivisionError:
             raise InputError("target row: a divisor (e.g. F31 or y_b) is 0") from None
         rest = vals[-1] if self._has_rest else 1.0
-        g = features(np.array(vals[:-1]))
+        pi_t = np.array(vals[:-1])
         kernel = self.kernel
         var = 0.0
-        if isinstance(kernel, GRUKernel):
-            mu, state = kernel.step(g, kernel.initial_state() if state is None else state)
-        elif isinstance(kernel, EnsembleKernel):
-            mu, var = kernel.row(g)
+        if source is None and self._bound_row is not None:  # the bound source folded into the first layer
+            mu, outside = self._bound_row(pi_t)
+            if outside:
+                self._warn(features(pi_t)[None], 1, 1)
         else:
-            mu = kernel.row(g)
+            g = features(pi_t)
+            if isinstance(kernel, GRUKernel):
+                mu, state = kernel.step(g, kernel.initial_state() if state is None else state)
+            elif isinstance(kernel, EnsembleKernel):
+                mu, var = kernel.row(g)
+            else:
+                mu = kernel.row(g)
+            outside = bool((g < self._g_lo).any() or (g > self._g_hi).any())
+            if outside:
+                self._warn(g[None], 1, 1)
         _, a, b = self._row_spread
         if isinstance(kernel, EnsembleKernel):
             half = a * math.sqrt(var)
             lo_log, hi_log = mu - half, mu + half
         else:
             lo_log, hi_log = mu + a, mu + b
-        outside = bool((g < self._g_lo).any() or (g > self._g_hi).any())
-        if outside:
-            self._warn(g[None], 1, 1)
         ie = self._inv_exp
         try:
             force = float((pi1 / math.exp(mu) / rest) ** ie)
