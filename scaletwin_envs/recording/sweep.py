@@ -16,10 +16,12 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import hashlib
 import importlib
 import itertools
 import json
+import math
 import time
 import warnings
 from collections.abc import Callable, Mapping
@@ -83,6 +85,19 @@ def policy_name(policy: str | PolicyFactory) -> str:
     return name
 
 
+@functools.cache
+def simulation_digest() -> str:
+    """sha256 (16 hex digits) of the source of every module of :mod:`scaletwin_envs`: the code that produced an
+    episode. Any change of it, even a comment, names every episode anew (a rerun simulates again): a stale
+    episode costs more than a repeated one."""
+    root = Path(scaletwin_envs.__file__).parent
+    h = hashlib.sha256()
+    for path in sorted(root.rglob("*.py")):
+        h.update(path.relative_to(root).as_posix().encode())
+        h.update(path.read_bytes())
+    return h.hexdigest()[:16]
+
+
 @dataclass(frozen=True)
 class EpisodeTask:
     """One episode of a sweep (picklable; all fields JSON values)."""
@@ -106,12 +121,15 @@ class EpisodeTask:
         return LoaderSpec.from_dict(self.scale) if isinstance(self.scale, Mapping) else self.scale
 
     def key(self) -> str:
-        """Stable hash of the parameters, the machine they name and the recording schema version (16 hex digits).
+        """Stable hash of the parameters, the machine they name, the simulation code and the recording schema
+        version (16 hex digits).
 
         A preset name or a length ratio names a machine through the presets, which change between versions: the
         key holds that machine's specification too, so a resumed sweep never keeps an episode of an older preset
-        (a dictionary ``scale`` is the specification already)."""
-        params = self.params()
+        (a dictionary ``scale`` is the specification already). It also holds :func:`simulation_digest`, so an
+        episode simulated by other code (physics, policies, signals) is never reused either: on 2026-11-25 a
+        benchmark cache kept dig episodes whose lengths a later change of the simulator had moved."""
+        params = {**self.params(), "simulation": simulation_digest()}
         if not isinstance(self.scale, Mapping):
             # no such machine (ValueError): the episode fails with make_loader's message and is reported failed
             with contextlib.suppress(ValueError):
@@ -325,9 +343,17 @@ def _write_manifest(out: str, manifest: dict[str, Any]) -> None:
     write_text_atomic(join(out, MANIFEST), json.dumps(manifest, indent=1, sort_keys=True, default=str))
 
 
+def _num(v: Any) -> float:
+    """A sort key of an optional number (missing ones first)."""
+    return float(v) if v is not None else -math.inf
+
+
 def load_dataset(out_dir: Location) -> pd.DataFrame:
-    """All episodes of a dataset folder (a path or filesystem URI) in one table (files in name order, rows in step
-    order).
+    """All episodes of a dataset folder (a path or filesystem URI) in one table, rows in step order.
+
+    Episodes come in the order of what they are (machine, soil, pile distance and height, seed; the file name only
+    breaks ties), not of their file names: the names are hashes, which change with the recording schema or a
+    preset, and an analysis that samples rows by position must not change with them.
 
     Adds ``episode`` (the task hash, or the file stem), ``machine`` (spec name), ``soil``, ``seed``,
     ``pile_distance`` and ``pile_height`` in front of the recording columns. ``attrs["units"]`` holds the unit
@@ -347,9 +373,11 @@ def load_dataset(out_dir: Location) -> pd.DataFrame:
         meta = {"episode": p.extra.get("sweep_task", {}).get("key", stem), "machine": (p.machine or {}).get("name"),
                 "soil": (p.soil or {}).get("name"), "seed": p.seed, "pile_distance": p.env_kwargs.get("pile_distance"),
                 "pile_height": p.env_kwargs.get("pile_height")}
-        frames.append(rec.data.assign(**meta)[[*meta, *rec.data.columns]])
+        frames.append(((str(meta["machine"]), str(meta["soil"]), _num(meta["pile_distance"]),
+                        _num(meta["pile_height"]), _num(meta["seed"]), name),
+                       rec.data.assign(**meta)[[*meta, *rec.data.columns]]))
         units.update(rec.units)
-    out = pd.concat(frames, ignore_index=True)
+    out = pd.concat([f for _, f in sorted(frames, key=lambda kf: kf[0])], ignore_index=True)
     out.attrs["units"] = {"episode": "-", "machine": "-", "soil": "-", "seed": "1", "pile_distance": "1",
                           "pile_height": "1", **units}
     return out

@@ -151,7 +151,8 @@ def generate_frame(spec: DatasetSpec, executor: str | int | Executor | None = "s
             label, kind, task = labelled[i]
             frames[i] = frame.assign(machine=label, episode_key=task.key(), kind=kind, soil=task.soil)
             bar.update()
-    return prepare(pd.concat([frames[i] for i in sorted(frames)], ignore_index=True))
+    return prepare(pd.concat([frames[i] for i in sorted(frames)], ignore_index=True),
+                   [task.key() for _, _, task in labelled])
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -186,7 +187,7 @@ def generate_recordings(spec: DatasetSpec, out_dir: str | Path, executor: str | 
                                      "every node can reach)")
     failed = [f"{name}: {error}" for name, error in errors.items()]
     episodes = {task.key(): {"machine": label, "kind": kind, **task.params()} for label, kind, task in labelled}
-    meta = {"format": FORMAT, "spec": spec.to_dict(), "episodes": episodes}
+    meta = {"format": FORMAT, "spec": spec.to_dict(), "episodes": episodes, "order": list(episodes)}
     write_text_atomic(join(out, SPEC_FILE), json.dumps(meta, indent=1, sort_keys=True, default=str))
     if failed:
         raise RuntimeError(f"{len(failed)} episodes failed: {failed[:3]}")
@@ -198,12 +199,13 @@ def load_recordings(data_dir: str | Path) -> pd.DataFrame:
     without an entry in ``scaling.json`` get ``kind="dig"`` and the machine name of their recording)."""
     raw = load_dataset(data_dir)
     meta_file = join(data_dir, SPEC_FILE)
-    episodes = json.loads(read_bytes(meta_file))["episodes"] if exists(meta_file) else {}
+    meta = json.loads(read_bytes(meta_file)) if exists(meta_file) else {}
+    episodes = meta.get("episodes", {})
     labels = raw["episode"].map(lambda k: episodes.get(k, {}).get("machine"))
     frame = raw.rename(columns={"time": "t", "episode": "episode_key"}).assign(
         machine=labels.fillna(raw["machine"]).astype(str),
         kind=raw["episode"].map(lambda k: episodes.get(k, {}).get("kind", "dig")))
-    return prepare(frame)
+    return prepare(frame, meta.get("order"))  # the data set's task order (scaling.json's episodes are key-sorted)
 
 
 def load_or_generate(data_dir: str | Path, spec: DatasetSpec, executor: str | int | Executor | None = None,
@@ -235,9 +237,14 @@ class StaleRecordingsWarning(UserWarning):
 # ----------------------------------------------------------------------------------------------------------------
 
 
-def prepare(frame: pd.DataFrame) -> pd.DataFrame:
-    """Canonical table: :data:`META_COLUMNS` then the signals; ``episode`` = integer id (episodes in the order of
-    their key), rows sorted by (episode, t), a fresh unique index.
+def prepare(frame: pd.DataFrame, order: Sequence[str] | None = None) -> pd.DataFrame:
+    """Canonical table: :data:`META_COLUMNS` then the signals; ``episode`` = integer id, rows sorted by
+    (episode, t), a fresh unique index.
+
+    Episodes are numbered in ``order`` (episode keys, e.g. a data set's :meth:`DatasetSpec.tasks` order; keys not
+    in it follow), else in their order of first appearance, never in the order of the keys themselves: keys are
+    hashes, which change with the recording schema or a preset, and the analyses downstream draw rows by
+    position (tests/scaling/test_data.py).
 
     Raises:
         KeyError: a needed column is missing.
@@ -248,7 +255,11 @@ def prepare(frame: pd.DataFrame) -> pd.DataFrame:
     out = frame.copy()
     if "soil" not in out.columns:
         out["soil"] = ""
-    keys = sorted(out["episode_key"].astype(str).unique())
+    present = list(pd.unique(out["episode_key"].astype(str)))
+    known = set(present)
+    keys = [k for k in dict.fromkeys(order or ()) if k in known]
+    seen = set(keys)
+    keys += [k for k in present if k not in seen]
     out["episode"] = out["episode_key"].astype(str).map({k: i for i, k in enumerate(keys)}).astype(np.int64)
     signals = [c for c in SIGNAL_UNITS if c in out.columns]
     out = out[[*META_COLUMNS, *signals]].sort_values(["episode", "t"], kind="stable").reset_index(drop=True)

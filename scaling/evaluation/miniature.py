@@ -61,7 +61,8 @@ def payload_com(spec: LoaderSpec, load: float) -> np.ndarray:
 
 def static_rows(spec: str | LoaderSpec = "mini", loads: tuple[float, ...] = LOADS, boom: float = CARRY_POSE["boom"],
                 pitch: float = CARRY_POSE["pitch"]) -> pd.DataFrame:
-    """One analytical static-equilibrium row per load (kg); columns as the recordings (SI) plus ``load_kg``."""
+    """One analytical static-equilibrium row per load (kg); columns as the recordings (SI: signals, cylinder
+    extensions from fully retracted, ``m_load``, ``kind = "hold"``) plus ``load_kg``."""
     loader = make_loader(spec)
     pose = carry_pose(loader, boom, pitch)
     bucket = linkage_layout(loader)["bucket"]
@@ -74,7 +75,9 @@ def static_rows(spec: str | LoaderSpec = "mini", loads: tuple[float, ...] = LOAD
         rows.append({"machine": loader.name, "episode": i, "t": 0.0, "load_kg": float(load), "F21": sol.F21,
                      "F31": sol.F31, "Pf_tilt": sol.Pf_tilt, "Pf_lift": sol.Pf_lift, "x_b": float(x_b),
                      "y_b": float(y_b), "m_b": m_b, "a1": 0.0, "alpha1": 0.0, "V1": 0.0, "w1": 0.0,
-                     "boom_angle": pose.boom, "bucket_pitch": pose.bucket_pitch})
+                     "boom_angle": pose.boom, "bucket_pitch": pose.bucket_pitch, "m_load": float(load), "kind": "hold",
+                     "lift_extension": pose.lift_length - loader.lift.closed_length,
+                     "tilt_extension": pose.tilt_length - loader.tilt.closed_length})
     return pd.DataFrame(rows)
 
 

@@ -242,3 +242,31 @@ def test_episode_key_follows_the_machine_a_preset_names(monkeypatch: pytest.Monk
     monkeypatch.setitem(presets.PRESETS, "er12", replace(er, traction_coefficient=0.55))
     assert task.key() != before[0]
     assert ratio.key() != before[1]
+
+
+def test_loaded_order_follows_the_episodes_not_their_file_names(tmp_path):
+    """Analyses sample rows by position; the hash names of the files must not decide the order."""
+    import shutil
+
+    first, second = tmp_path / "a", tmp_path / "b"
+    run_sweep(SweepSpec(scales=("mini", 0.2), seeds=(0, 1)), first, executor="serial", progress=False)
+    names = sorted(p.name for p in first.glob("ep-*.parquet"))
+    second.mkdir()
+    for old, new in zip(names, reversed(names), strict=True):  # same episodes under each other's names
+        shutil.copy(first / old, second / new)
+    a, b = load_dataset(first), load_dataset(second)
+    pd.testing.assert_frame_equal(a, b)
+    order = a.drop_duplicates("episode")[["machine", "seed"]].apply(tuple, axis=1).tolist()
+    assert order == sorted(order)
+
+
+def test_episode_key_follows_the_simulation_code(monkeypatch: pytest.MonkeyPatch) -> None:
+    """An episode recorded by other simulation code is never reused: the key holds the code's digest."""
+    import scaletwin_envs.recording.sweep as sweep
+
+    task = EpisodeTask(scale={"name": "x"}, soil="gravel", pile_distance=0.5, pile_height=0.6, seed=0)
+    digest = sweep.simulation_digest()
+    assert len(digest) == 16 and digest == sweep.simulation_digest()
+    before = task.key()
+    monkeypatch.setattr(sweep, "simulation_digest", lambda: "0" * 16)
+    assert task.key() != before

@@ -163,6 +163,10 @@ def test_demo_on_tiny_settings(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) 
     np.testing.assert_allclose(mini["models"]["direct-pi"]["pct_error"], _direct_pi_mini(ref["F21"] / ref["F31"]),
                                rtol=1e-9)
     assert mini == json.loads((tmp_path / "run" / "mini.json").read_text())
+    # step 4: the shipped product-line model on the same miniature rows, from the same ER12 recordings
+    pl = json.loads((tmp_path / "product_line_mini.json").read_text())
+    assert pl["loads_kg"] == mini["loads_kg"] and pl["model"] == "statics-pl"
+    assert pl["mean_abs_pct_error"] < 5.0
 
 
 def test_reproduce_quick_writes_the_report(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

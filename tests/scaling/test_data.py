@@ -18,6 +18,7 @@ from scaling.data.recordings import (
     generate_recordings,
     load_or_generate,
     load_recordings,
+    prepare,
 )
 from scaling.evaluation import metrics as ev
 
@@ -55,6 +56,19 @@ def test_back_ends_agree_and_holds_reach_rest(tmp_path: Path) -> None:
     # a rerun skips recorded episodes and returns the same table
     generate_recordings(ONE, tmp_path, executor="serial", progress=False)
     assert dataset_hash(load_recordings(tmp_path)) == dataset_hash(frame)
+
+
+def test_episodes_are_numbered_in_task_order_not_key_order(tmp_path: Path) -> None:
+    """Episode ids (and so every positional draw downstream: reference rows, training pairs) follow the data
+    set's task order in both back ends; renaming every episode's key, as a schema or preset change does, changes
+    nothing else."""
+    frame = generate_frame(ONE)
+    tasks = [task.key() for _, _, task in ONE.tasks()]
+    first = frame.drop_duplicates("episode")
+    assert first["episode_key"].tolist() == tasks
+    renamed = frame.assign(episode_key=frame["episode_key"].map({k: f"{9 - i}-{k}" for i, k in enumerate(tasks)}))
+    again = prepare(renamed)
+    pd.testing.assert_frame_equal(again.drop(columns="episode_key"), frame.drop(columns="episode_key"))
 
 
 def test_a_reused_folder_returns_only_the_episodes_of_the_spec(tmp_path: Path) -> None:

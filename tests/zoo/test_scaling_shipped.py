@@ -63,7 +63,9 @@ def test_card_describes_the_model(name: str, models: dict[str, zoo.ScalingModel]
     assert set(card["training"]["machines"]) == {"er12", "wa475"} and card["training"]["soils"]
     assert len(card["training"]["data_hashes"]["train"]) == 16 and card["training"]["code_version"]
     assert [d["name"] for d in card["inputs"]] == list(models[name].target_variables)
-    assert 0.9 < card["metrics"]["held_out_episodes"]["r2_dig"] <= 1.0
+    # held-out dig cycles of the two training machines; since the ER12 and the WA475 are two designs the Eq. (10)
+    # groups explain less of δ1 between them (0.87–0.97; one layout at two sizes gave 0.95–0.995)
+    assert 0.85 < card["metrics"]["held_out_episodes"]["r2_dig"] <= 1.0
     assert card["interval"]["method"] == ("ensemble" if name.startswith("ensemble") else "residual-quantiles")
     assert len(card["training_range"]["min"]) == len(card["groups"]["inputs"])
 
