@@ -127,7 +127,7 @@ def run(args: argparse.Namespace) -> int:
     console.print(f"      FFNN on held-out dig cycles: R² of δ1 = {m.get('r2_dig', m['r2']):.4f} "
                   f"(all held-out rows {m['r2']:.4f}), fitted in {m['fit_s']:.1f} s")
     console.print("      (the demo fits the default 3×64 FFNN on half the standard data set, 24 dig cycles per "
-                  "machine; the README's 0.979 is `scaletwin reproduce`: the full set and the grid's pick)")
+                  "machine; `scaletwin reproduce` fits the full set with the grid's pick)")
     console.print("[bold]3/4[/bold] Scaling F21 from the ER12 twin to the 11 kg miniature at rest")
     mini = result.mini
     console.print(mini_table(mini, f"Miniature: F21 scaled from ER12 row {result.reference.name} "
