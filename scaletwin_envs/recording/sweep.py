@@ -111,6 +111,9 @@ class EpisodeTask:
     law: str = "product_line"
     policy_kwargs: dict[str, Any] = field(default_factory=dict)
     env_kwargs: dict[str, Any] = field(default_factory=dict)
+    #: the code the episode is to be simulated by (:func:`simulation_digest` of the process that made the task,
+    #: carried to the workers so that the file a worker writes is the one the sweep expects)
+    simulation: str = field(default_factory=lambda: simulation_digest())
 
     def params(self) -> dict[str, Any]:
         return asdict(self)
@@ -126,10 +129,10 @@ class EpisodeTask:
 
         A preset name or a length ratio names a machine through the presets, which change between versions: the
         key holds that machine's specification too, so a resumed sweep never keeps an episode of an older preset
-        (a dictionary ``scale`` is the specification already). It also holds :func:`simulation_digest`, so an
-        episode simulated by other code (physics, policies, signals) is never reused either: on 2026-11-25 a
-        benchmark cache kept dig episodes whose lengths a later change of the simulator had moved."""
-        params = {**self.params(), "simulation": simulation_digest()}
+        (a dictionary ``scale`` is the specification already). It also holds :attr:`simulation`, so an episode
+        simulated by other code (physics, policies, signals) is never reused either: on 2026-11-25 a benchmark
+        cache kept dig episodes whose lengths a later change of the simulator had moved."""
+        params = self.params()
         if not isinstance(self.scale, Mapping):
             # no such machine (ValueError): the episode fails with make_loader's message and is reported failed
             with contextlib.suppress(ValueError):

@@ -1,4 +1,8 @@
-"""The paper's three machines. Every value names its source; *estimate* marks values without a public spec.
+"""The paper's three machines, three designs: each its own linkage layout and hydraulics (not one layout at three
+sizes), each valid by :func:`scaletwin_envs.design_space.check_design`. Every value names its source; *estimate*
+marks values without a public spec. Cylinder closed lengths and strokes of the mini and the WA475 are fitted to
+their layouts so that the boom sweeps the ER12's raise angle and the bucket its tilt range
+(:func:`scaletwin_envs.design_space.build_design`'s rule), so the same scripted cycle runs on all three.
 
 Sources: [paper] Karanfil & Ravani, "Scaling Digital Twin Models" (shared/paper), Table 2 and section 2.6;
 [physics] shared/reference/physics.md (public spec sheets and handbook ranges).

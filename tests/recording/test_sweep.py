@@ -260,13 +260,16 @@ def test_loaded_order_follows_the_episodes_not_their_file_names(tmp_path):
     assert order == sorted(order)
 
 
-def test_episode_key_follows_the_simulation_code(monkeypatch: pytest.MonkeyPatch) -> None:
-    """An episode recorded by other simulation code is never reused: the key holds the code's digest."""
+def test_episode_key_follows_the_simulation_code() -> None:
+    """An episode recorded by other simulation code is never reused: the key holds the code's digest, which a task
+    takes from the process that makes it and carries to the workers."""
+    import pickle
+    from dataclasses import replace
+
     import scaletwin_envs.recording.sweep as sweep
 
     task = EpisodeTask(scale={"name": "x"}, soil="gravel", pile_distance=0.5, pile_height=0.6, seed=0)
     digest = sweep.simulation_digest()
-    assert len(digest) == 16 and digest == sweep.simulation_digest()
-    before = task.key()
-    monkeypatch.setattr(sweep, "simulation_digest", lambda: "0" * 16)
-    assert task.key() != before
+    assert len(digest) == 16 and task.simulation == digest == sweep.simulation_digest()
+    assert replace(task, simulation="0" * 16).key() != task.key()
+    assert pickle.loads(pickle.dumps(task)).key() == task.key()  # what a worker process sees
