@@ -1,6 +1,6 @@
 """The product-line δ1 checkpoint ``statics-pl``: F21 of a machine of *another design*, from any calibrated one.
 
-The paper's checkpoints (:mod:`zoo.build`) learnt δ1 on the ER12 and the WA475, one layout at two sizes. This one is
+The paper's checkpoints (:mod:`zoo.build`) learnt δ1 on two machines only, the ER12 and the WA475. This one is
 trained across a sampled product line (:class:`scaling.evaluation.generalisation.LeaveMachineOut`: the ER12 and 24 drawn
 machines that differ in linkage, hydraulics, masses, bucket and traction), on matched (source, target) row pairs,
 so any calibrated machine of the line can be the source. Its output group is π1 = F21 / F21_linkage (F21 over the
