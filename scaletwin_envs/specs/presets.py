@@ -10,7 +10,7 @@ Sources: [paper] Karanfil & Ravani, "Scaling Digital Twin Models" (shared/paper)
 
 from __future__ import annotations
 
-import math
+from dataclasses import replace
 
 from scaletwin_envs.specs.loader import CylinderSpec, LinkageGeometry, LoaderSpec, MassProperties
 
@@ -104,15 +104,15 @@ WA475_GEOMETRY = LinkageGeometry(
     bucket_width=3.109,
 )
 _WA_MASS = 26000.0 / 3300.0  # component masses = ER12's × operating-mass ratio *estimate*
-_WA_LIFT_BORE, _WA_LIFT_STROKE = 0.14, 1.892  # m; stroke fitted to WA475_GEOMETRY (ER12 raise angle)
 _WA_RAISE_TIME = 6.0  # s *estimate*, inside the 5–7 s band of physics.md (cycle times nearly constant in seconds)
+# stroke fitted to WA475_GEOMETRY (ER12 raise angle); pump flow set below for the raise time
+_WA_LIFT = CylinderSpec(bore=0.14, rod_diameter=0.08, closed_length=2.704, stroke=1.892, relief_pressure=32e6,
+                        pump_flow=1.0, barrel_mass=ER12.lift.barrel_mass * _WA_MASS,
+                        rod_mass=ER12.lift.rod_mass * _WA_MASS, count=2)
 
 WA475 = LoaderSpec(
     name="wa475", scale=_WA_LENGTH, geometry=WA475_GEOMETRY, masses=ER12.masses.scaled(_WA_MASS),
-    lift=CylinderSpec(bore=_WA_LIFT_BORE, rod_diameter=0.08, closed_length=2.704, stroke=_WA_LIFT_STROKE,
-                      relief_pressure=32e6, pump_flow=2 * math.pi * _WA_LIFT_BORE**2 / 4 * _WA_LIFT_STROKE
-                      / _WA_RAISE_TIME, barrel_mass=ER12.lift.barrel_mass * _WA_MASS,
-                      rod_mass=ER12.lift.rod_mass * _WA_MASS, count=2),
+    lift=replace(_WA_LIFT, pump_flow=_WA_LIFT.bore_area * _WA_LIFT.stroke / _WA_RAISE_TIME),
     tilt=CylinderSpec(bore=0.14, rod_diameter=0.08, closed_length=1.760, stroke=1.020, relief_pressure=32e6,
                       pump_flow=6.0e-3, barrel_mass=ER12.tilt.barrel_mass * _WA_MASS,
                       rod_mass=ER12.tilt.rod_mass * _WA_MASS),

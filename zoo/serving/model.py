@@ -211,7 +211,7 @@ class ScalingModel:
         self._features = Features.build(self._transform, vals[0, :-1] if one else vals[:, :-1])
         kernel = self.kernel
         self._bound_row = (BoundMLPRow.build(kernel, self._features, self._g_lo, self._g_hi)
-                           if one and isinstance(kernel, MLPKernel) else None)
+                           if isinstance(kernel, MLPKernel) else None)  # None for several sources too
         self._pi1_source = float(pi1[0]) if one else pi1
         self._n_source = len(x)
         if self._h_reference is not None:
