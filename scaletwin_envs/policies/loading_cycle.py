@@ -29,6 +29,8 @@ from scaletwin_envs.policies.base import DigPolicy
 from scaletwin_envs.policies.scripted import TUNED, ScriptedDigPolicy, Stage
 
 N_DIG = len(DIG_OBS_NAMES)
+#: Dig-view entries that count from the start of a dig-env episode (re-based at each handover to a learned dig).
+_RESTARTED = [DIG_OBS_INDEX[k] for k in ("time", "spilled", "advance")]
 
 
 class CycleStage(IntEnum):
@@ -41,6 +43,7 @@ class CycleStage(IntEnum):
     BACK_OUT = 4
     LIFT_OUT = 5  # between DIG and REVERSE (numbered last so the earlier values keep their meaning)
     SHED = 6  # between LIFT_OUT and REVERSE on the last pass: tip back onto the pile what the truck does not need
+    RETURN = 7  # between BACK_OUT and DIG for a dig policy without an approach of its own (a learned one)
 
 
 # The dump linkage turns the bucket 4-6x faster per unit of tilt stroke than the presets' (velocity ratio
@@ -159,6 +162,19 @@ class LoadingCyclePolicy(DigPolicy):
         shed_gain: forward tilt command per bucket fill of surplus while shedding (between
             :data:`SHED_MIN_TILT` and ``shed_tilt``).
         shed_clearance: edge height above the pile surface the boom rises to before the bucket tips, L.
+        dig_gap: distance from the cutting edge to the pile face at which a dig policy without an approach of its
+            own (anything but a :class:`ScriptedDigPolicy`) takes over, L: the dig env's ``pile_distance``, so a
+            learned dig starts each pass where it was trained to start (bucket level on the ground, facing the pile).
+        return_drive: drive command on the way back to ``dig_gap``.
+        full_steps: control steps a dig policy without stages of its own may keep a full bucket (fill ≥
+            ``full_fill``) in the pile before the cycle lifts it out: a learned dig ends its dig-env episode by
+            clearing the pile, but on a face standing in cohesive soil it was seen to crowd a full bucket on into
+            the pile for 1.5 L (wa475, clay loam, 2026-11-25); 15 steps ≈ 3 Froude times.
+        full_fill: fill (fraction of heaped capacity) counted as full for ``full_steps``.
+        dig_retreat: distance in front of the turn (``to_apex``, L) at which a dig policy without stages of its
+            own that backs away is taken over: a learned dig that curled a nearly empty bucket pulled back past
+            the turn, which switched the env to the truck leg with 0.07 of a bucket (mini, gravel, seed 1,
+            2026-11-25); a bucket above 0.3 is carried, a lighter one taken back to the pile for another dig.
 
     The last pass takes what the truck still needs: the truck's payload per bucket fill is learnt from the dumps
     so far (``truck_fill`` gained over bucket fill emptied), so the policy needs no truck size; after the dig, a
@@ -183,6 +199,11 @@ class LoadingCyclePolicy(DigPolicy):
     shed_tilt: float = 0.3
     shed_gain: float = 1.0
     shed_clearance: float = 0.2
+    dig_gap: float = 0.5
+    return_drive: float = 0.5
+    full_steps: int = 15
+    full_fill: float = 1.0
+    dig_retreat: float = 0.1
 
     def __post_init__(self) -> None:
         self.reset()
@@ -194,6 +215,8 @@ class LoadingCyclePolicy(DigPolicy):
         self._lift = 0.0  # last lift command
         self._dumped_fill = self._dumped_truck = 0.0  # bucket fill emptied and truck_fill gained by the dumps
         self._before: tuple[float, float] = (0.0, 0.0)  # fill and truck_fill as the current dump started
+        self._full = 0  # control steps the bucket has been full in the current dig
+        self._dig_origin: np.ndarray | None = None  # time, spilled, advance at the handover to a learned dig
         if hasattr(self.dig, "reset"):
             self.dig.reset()
 
@@ -206,6 +229,14 @@ class LoadingCyclePolicy(DigPolicy):
 
     def _dig_action(self, obs: np.ndarray) -> np.ndarray:
         view = obs[:N_DIG]
+        if not isinstance(self.dig, ScriptedDigPolicy):
+            # the dig view as the dig env shows it from the start of an episode: time, spill and advance count
+            # from this handover, not from the pass's switch to the pile leg (a learned dig handed over 20 Froude
+            # times into its pass read it as the end of its episode and pulled back at once: mini, 2026-11-25)
+            if self._dig_origin is None:
+                self._dig_origin = view[_RESTARTED].copy()
+            view = view.copy()
+            view[_RESTARTED] -= self._dig_origin
         if hasattr(self.dig, "act"):
             return np.asarray(self.dig.act(view), dtype=np.float32)
         return np.asarray(self.dig.predict(view, deterministic=True)[0], dtype=np.float32)
@@ -213,6 +244,9 @@ class LoadingCyclePolicy(DigPolicy):
     def _dig_done(self, o: dict[str, float]) -> bool:
         if isinstance(self.dig, ScriptedDigPolicy):
             return self.dig.stage in (Stage.LIFT, Stage.PULL_BACK)  # the cycle lifts and carries from here
+        self._full = self._full + 1 if o["fill"] >= self.full_fill else 0
+        if self._full >= self.full_steps:
+            return True  # full and still in the pile: the cycle lifts it out (see full_steps)
         return o["fill"] > 0.3 and o["edge_depth"] < -0.05 and o["bucket_pitch"] > 0.3  # the dig env's "clear"
 
     def act(self, obs: np.ndarray) -> np.ndarray:
@@ -225,6 +259,7 @@ class LoadingCyclePolicy(DigPolicy):
         if self.stage is CycleStage.DIG:
             action = self._dig_action(obs)
         else:
+            self._dig_origin = None
             action = self._carry_action(o, pitch, rate)
             # the boom starts and stops gradually: a lift command stepping between 0 and 1 (bang-bang height
             # keeping, the pitch gate) rocked the loaded bucket on its tilt cylinder by ±0.3 rad per step on the
@@ -266,6 +301,10 @@ class LoadingCyclePolicy(DigPolicy):
         if self.stage is CycleStage.DUMP:
             tilt = 0.0 if o["truck_fill"] >= 1.0 else -1.0  # partial last dump: stop once the target is in
             return np.array([0.0, tilt, 0.0], dtype=np.float32)
+        if self.stage is CycleStage.RETURN:
+            # boom down until the edge is on the ground, bucket level, forward to where a dig env episode starts
+            lift = -1.0 if o["edge_height"] > 0.02 else 0.0
+            return np.array([lift, _hold_pitch(pitch, rate, 0.0), self.return_drive], dtype=np.float32)
         # BACK_OUT: clear the body before lowering, then lower and level on the way to the apex
         over = o["edge_x_to_truck"] > -0.1
         lift = 0.0 if over else -1.0
@@ -273,8 +312,13 @@ class LoadingCyclePolicy(DigPolicy):
         return np.array([lift, tilt, -1.0], dtype=np.float32)
 
     def _advance(self, o: dict[str, float]) -> None:
-        if self.stage is CycleStage.DIG and o["leg"] == 0.0 and self._dig_done(o):
-            self.stage = CycleStage.LIFT_OUT
+        if (self.stage is CycleStage.DIG and o["leg"] == 0.0 and o["to_apex"] < self.dig_retreat
+                and not isinstance(self.dig, ScriptedDigPolicy)):
+            # a learned dig backing away towards the turn (its dig-env episodes end with a pull back): carry on
+            # with what it holds, or, nearly empty, return to the pile and dig again
+            self.stage, self._full = (CycleStage.REVERSE if o["fill"] > 0.3 else CycleStage.RETURN), 0
+        elif self.stage is CycleStage.DIG and o["leg"] == 0.0 and self._dig_done(o):
+            self.stage, self._full = CycleStage.LIFT_OUT, 0
         elif self.stage is CycleStage.LIFT_OUT and (o["edge_depth"] < -self.pile_clearance or o["leg"] == 1.0):
             surplus = o["fill"] > self.needed_fill(o["truck_fill"]) + self.shed_margin
             self.stage = CycleStage.SHED if surplus and o["leg"] == 0.0 else CycleStage.REVERSE
@@ -294,6 +338,8 @@ class LoadingCyclePolicy(DigPolicy):
                 self._dumped_fill += self._before[0] - o["fill"]
                 self._dumped_truck += o["truck_fill"] - self._before[1]
         elif self.stage is CycleStage.BACK_OUT and o["leg"] == 0.0:
-            self.stage = CycleStage.DIG
+            self.stage = CycleStage.DIG if isinstance(self.dig, ScriptedDigPolicy) else CycleStage.RETURN
             if hasattr(self.dig, "reset"):
                 self.dig.reset()
+        elif self.stage is CycleStage.RETURN and o["edge_x_to_pile"] >= -self.dig_gap:
+            self.stage = CycleStage.DIG

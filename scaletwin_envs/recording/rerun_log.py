@@ -192,7 +192,7 @@ class RerunLogger:
         self.do_signals, self.do_scene, self.flush_every = signals, scene, max(1, int(flush_every))
         loader = getattr(self.unwrapped, "loader", None)
         length = loader.characteristic_length if loader is not None else None
-        self.sender = SignalSender(rec, SIGNAL_UNITS, length)
+        self.sender = SignalSender(rec, {**SIGNAL_UNITS, **TRUCK_UNITS}, length)
         self.scene = SceneLogger(self.unwrapped.model)
         self._pile_h: np.ndarray | None = None
         self._clear()
@@ -214,6 +214,9 @@ class RerunLogger:
         if self.do_signals:
             for k, v in info.get("signals", {}).items():
                 self._signals.setdefault(k, []).append(v)
+            for k in TRUCK_UNITS:  # the loading cycle's truck columns (the "Truck" tab), as in its recordings
+                if k in info:
+                    self._signals.setdefault(k, []).append(float(info[k]))
             self._phases.append(str(info.get("phase", "")))
         if self.do_scene:
             self._log_scene_step(step, info)

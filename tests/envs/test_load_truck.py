@@ -253,6 +253,52 @@ def test_rerun_log_of_a_cycle_plots_the_truck(tmp_path: Path) -> None:
     assert "Truck" in panel_plots(truck=True) and "Truck" not in panel_plots()
 
 
+def test_live_rerun_logger_sends_the_truck_columns(tmp_path: Path) -> None:
+    """The live logger (an ``on_step`` callback while the env steps) sends the truck's payload and passes, one sample
+    per step, equal to the env's ``info``; the same series an .rrd of the recording has."""
+    from rerun.chunk import RrdReader
+
+    from scaletwin_envs.recording.rerun_log import RerunLogger, open_stream
+    from scaletwin_envs.rollout import run_episode
+
+    env = gym.make(ENV_ID, scale="mini", max_episode_steps=25)
+    path = tmp_path / "live.rrd"
+    rec = open_stream(path, truck=True)
+    logger = RerunLogger(env, rec, scene=False, flush_every=7)
+    episode = run_episode(env, LoadingCyclePolicy(), seed=0, on_step=logger)
+    logger.close()
+    rec.disconnect()
+    sent: dict[str, list[float]] = {}
+    for chunk in RrdReader(path).stream().collect().stream():
+        if chunk.entity_path in ("/signals/truck_payload", "/signals/passes") and not chunk.is_static:
+            batch = chunk.to_record_batch()
+            column = next(n for n in batch.schema.names if n.endswith("Scalars:scalars"))
+            sent.setdefault(chunk.entity_path, []).extend(v[0] for v in batch.column(column).to_pylist())
+    assert len(sent["/signals/truck_payload"]) == len(episode.infos) == 25
+    assert sent["/signals/truck_payload"] == pytest.approx([i["truck_payload"] for i in episode.infos])
+    assert sent["/signals/passes"] == pytest.approx([i["passes"] for i in episode.infos])
+
+
+def test_learned_dig_runs_inside_the_cycle() -> None:
+    """The zoo's learned bucket-fill policy as the cycle's dig: after each dump the cycle brings the bucket back,
+    level on the ground, to the dig env's start distance from the pile face, and the learned dig fills it again;
+    a two-bucket truck is filled (95 %) in two passes."""
+    zoo = pytest.importorskip("zoo")
+    env = gym.make(ENV_ID, scale="er12", soil="gravel", truck_payload=2.0, done_fraction=0.95)
+    obs, info = env.reset(seed=0)
+    policy = LoadingCyclePolicy(dig=zoo.load("bucketfill-ppo"))
+    stages: list[CycleStage] = []
+    while True:
+        obs, _, term, trunc, info = env.step(policy.act(obs))
+        if not stages or stages[-1] is not policy.stage:
+            stages.append(policy.stage)
+        if term or trunc:
+            break
+    assert info["success"] and info["passes"] == 2, info["passes"]
+    assert CycleStage.RETURN in stages and stages.index(CycleStage.RETURN) < len(stages) - 1
+    assert info["truck_payload"] >= 0.95 * info["target_payload"]
+
+
 def test_a_recorded_episode_keeps_the_truck_columns(tmp_path: Path) -> None:
     """A short loading-cycle episode recorded to Parquet and read back: the truck's payload (kg) and the passes are
     columns, the load phases are kept; a dig-env recording has no truck columns."""
