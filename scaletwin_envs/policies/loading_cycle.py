@@ -100,12 +100,14 @@ class FaceDigPolicy(ScriptedDigPolicy):
             does not count as a stall (40 ≈ 8 Froude times, several times what the boom needs to lift a cut).
         face_reach: distance to the face (extrapolated to the ground) within which the approach may turn into
             penetration, boom lengths.
+        lower_above: edge height above which the approach lowers the boom at full speed, boom lengths.
     """
 
     cut_depth: float = 0.25
     cut_gain: float = 5.0
     face_steps: int = 40
     face_reach: float = 0.1
+    lower_above: float = 0.05
 
     def reset(self) -> None:
         """Start a new dig."""
@@ -129,6 +131,10 @@ class FaceDigPolicy(ScriptedDigPolicy):
     def act(self, obs: np.ndarray) -> np.ndarray:
         """The scripted dig's action, the lift replaced while penetrating (see class docstring)."""
         action = super().act(obs)
+        if self.stage is Stage.APPROACH and obs[DIG_OBS_INDEX["edge_height"]] > self.lower_above:
+            # back from the truck the boom is still up: the scripted approach's slow lowering (-0.3) left the edge
+            # 0.16 L up when it met the pile at λ 0.5, and the cut skimmed the slope (0.13 of a bucket, 2026-11-25)
+            action[0] = -1.0
         if self.stage is Stage.PENETRATE:
             depth = float(obs[DIG_OBS_INDEX["edge_depth"]])
             action[0] = float(np.clip(self.cut_gain * (depth - self.cut_depth), 0.0, 1.0))

@@ -384,3 +384,26 @@ def test_dump_linkage_curls_at_least_as_hard_as_the_machine(scale: str) -> None:
     wa475 curl in clay loam stalled where it was 10-15 % below)."""
     spec = make_loader(scale)
     assert curl_torque_deficit(spec, dump_capable(spec)) <= 1.0 + 1e-9
+
+
+def test_face_dig_approach_lowers_a_raised_boom_at_full_speed() -> None:
+    """Back from the truck the boom is still up: the face dig's approach lowers it at full speed while the edge is
+    above ``lower_above`` (L), and as the scripted dig does (-0.3) below it; on the ground it does not lower."""
+    from scaletwin_envs.envs.wheel_loader_dig import OBS_INDEX as DIG_INDEX
+    from scaletwin_envs.envs.wheel_loader_dig import OBS_NAMES as DIG_NAMES
+    from scaletwin_envs.policies.loading_cycle import FaceDigPolicy
+    from scaletwin_envs.policies.scripted import TUNED, Stage
+
+    def lift(height: float) -> float:
+        policy = FaceDigPolicy(**TUNED)
+        obs = np.zeros(len(DIG_NAMES), dtype=np.float32)
+        obs[DIG_INDEX["edge_height"]] = height
+        obs[DIG_INDEX["edge_depth"]] = -height
+        obs[DIG_INDEX["edge_x_to_pile"]] = -0.05
+        action = policy.act(obs)
+        assert policy.stage is Stage.APPROACH
+        return float(action[0])
+
+    assert lift(0.2) == -1.0
+    assert lift(0.03) == pytest.approx(-0.3)
+    assert lift(0.0) == 0.0
