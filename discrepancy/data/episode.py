@@ -173,9 +173,12 @@ def _floats(column: pd.Series, what: str, allow_nan: bool = False) -> np.ndarray
 
 
 def _check_commands(commands: np.ndarray, name: str) -> None:
-    worst = float(np.nanmax(np.abs(commands))) if np.any(np.isfinite(commands)) else 0.0
+    # per column, so that the message names the command at fault (NaN, a gap bridged later, counts as 0)
+    size = np.max(np.abs(np.where(np.isfinite(commands), commands, 0.0)), axis=0, initial=0.0)
+    worst = float(np.max(size, initial=0.0))
     if worst > 1.0 + 1e-6:
-        raise RecordingError(f"{name}: commands must be normalised to [-1, 1] (largest |command| is {worst:.3g})")
+        column = COMMAND_COLUMNS[int(np.argmax(size))]
+        raise RecordingError(f"{name}: commands must be normalised to [-1, 1] (largest |{column}| is {worst:.3g})")
 
 
 def _check_increasing(time: np.ndarray, name: str) -> None:

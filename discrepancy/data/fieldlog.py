@@ -183,7 +183,8 @@ def prepare_log(time: np.ndarray, commands: np.ndarray, signals: Mapping[str, np
 
     Raises:
         RecordingError: a gap too long to bridge (naming the channel, time and length), a log slower than the
-            control step, no compared signal, or too few rows.
+            control step, no compared signal, too few rows, or a channel whose values overflow the resampling
+            (naming it).
     """
     time = np.asarray(time, dtype=np.float64)
     steps = np.diff(time)
@@ -234,13 +235,29 @@ def prepare_log(time: np.ndarray, commands: np.ndarray, signals: Mapping[str, np
     if len(grid) < 2:
         raise RecordingError(f"{name}: the log spans {time[-1] - time[0]:.3g} s, less than two control steps")
     taps, description = antialias_filter(h, dt)
-    out = {k: resample_signal(time, v, grid, dt, taps=taps) for k, v in bridged.items()}
+    out = {k: _resampled(time, v, grid, dt, taps, k, name) for k, v in bridged.items()}
     if np.ptp(steps) > UNIFORM_TOLERANCE * h:
         warnings.append(f"timestamps jittered (steps {steps.min():.4g}..{steps.max():.4g} s): interpolated onto a "
                         f"uniform {h:.4g} s grid before filtering")
     report = InputReport(1.0 / h, dt, True, description, tuple(gaps), missing, warnings=tuple(warnings))
     return PreparedLog(grid, resample_commands(time, cmds, grid, dt), out, resample_phases(time, phases, grid),
                        report)
+
+
+def _resampled(time: np.ndarray, x: np.ndarray, grid: np.ndarray, dt: float, taps: np.ndarray, channel: str,
+               name: str) -> np.ndarray:
+    """:func:`resample_signal`, refusing a channel whose values overflow it."""
+    # values near the float64 limit (a logger's 1e306 N) overflow in the filter or the spline: without this check
+    # the channel came back inf/NaN (a silent NaN) or scipy raised a ValueError naming neither file nor channel
+    with np.errstate(over="ignore", invalid="ignore"):
+        try:
+            out = resample_signal(time, x, grid, dt, taps=taps)
+        except ValueError:  # CubicSpline refuses the non-finite filter output
+            out = np.full(len(grid), np.nan)
+    if not np.all(np.isfinite(out)):
+        raise RecordingError(f"{name}: {channel} cannot be resampled: its values (largest magnitude "
+                             f"{np.max(np.abs(x)):.3g}, SI) overflow the anti-alias filter")
+    return out
 
 
 def control_grid(time: np.ndarray, dt: float) -> np.ndarray:
@@ -316,7 +333,8 @@ def bridge_gaps(time: np.ndarray, x: np.ndarray, channel: str, max_span: float, 
         the filled copy and the gaps ``(channel, t_first_missing, t_last_missing)``.
 
     Raises:
-        RecordingError: a longer gap, naming the channel, its time and its length.
+        RecordingError: a longer gap, naming the channel, its time and its length; or a line between values so
+            large that it overflows (naming the channel).
     """
     x = np.array(x, dtype=np.float64, copy=True)
     bad = ~np.isfinite(x)
@@ -340,6 +358,9 @@ def bridge_gaps(time: np.ndarray, x: np.ndarray, channel: str, max_span: float, 
     else:
         filled = np.interp(time, time[good], x[good])
     x[bad] = filled[bad]
+    if not np.all(np.isfinite(x)):  # a line between values near the float64 limit overflows: no silent NaN
+        raise RecordingError(f"{name}: {channel} cannot be bridged: the line between its values around a gap "
+                             f"(largest magnitude {np.max(np.abs(x[good])):.3g}, SI) overflows")
     return x, gaps
 
 

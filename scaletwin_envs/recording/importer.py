@@ -251,5 +251,12 @@ def _parse(unit: str) -> str:
         return "dimensionless"
     for old, new in _REPLACE:
         text = text.replace(old, new)
-    unit_registry().parse_units(text)  # raises UndefinedUnitError for unknown units
+    try:
+        unit_registry().parse_units(text)  # raises UndefinedUnitError for unknown units
+    except pint.PintError:
+        raise
+    except Exception as exc:  # pint's parser raises other types on malformed text (tokenize.TokenError for "((((",
+        # TypeError for "1-A"): they escaped the per-column report and the file was refused as corrupted, the
+        # column unnamed
+        raise ValueError(f"{unit!r} is not a unit expression pint can parse ({type(exc).__name__}: {exc})") from exc
     return text
