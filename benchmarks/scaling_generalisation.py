@@ -79,6 +79,11 @@ def main() -> None:
                   PI1_LINKAGE),
         Candidate("ensemble-statics (pairs, π1 = F21/F21_linkage)",
                   lambda: DeepEnsemble(k=3, **net, include_source=True), linkage, PI1_LINKAGE),
+        Candidate("ffnn-statics, 3 nearest sources", lambda: FFNN(**net, include_source=True), linkage,
+                  PI1_LINKAGE, sources=3, same_model_as="ffnn-statics (pairs, π1 = F21/F21_linkage)"),
+        Candidate("ensemble-statics, 3 nearest sources", lambda: DeepEnsemble(k=3, **net, include_source=True),
+                  linkage, PI1_LINKAGE, sources=3,
+                  same_model_as="ensemble-statics (pairs, π1 = F21/F21_linkage)"),
     ]
     result = evaluate(frame, split, candidates, progress=print)
     load.append(os.getloadavg()[0])
@@ -111,7 +116,9 @@ def report(table: pd.DataFrame, meta: dict) -> str:
         f"{len(meta['split']['calibration'])} drawn machines; test: {len(meta['split']['test']) - 2} drawn machines "
         "(seed 1) + `mini` + `wa475`. Rows judged: after start-up settling, F21 > 5 % of the machine's peak; static "
         "= inertial groups below 0.1 % of F31 (the bucket held still), dynamic = the rest. "
-        "Source of every target: its nearest training machine by design (direct-Pi (ER12): the ER12). "
+        "Source of every target: its nearest training machine by design (direct-Pi (ER12): the ER12); the "
+        "\"3 nearest sources\" rows judge the same fitted network from the 3 nearest training machines and take the "
+        "geometric mean of the 3 forces (`scaling.evaluation.generalisation.combine_sources`). "
         "Intervals: split conformal over the calibration machines (each weighing the same) on a per-row scale, "
         "either learned from the error score's features (cross-fitted over the calibration machines, "
         "`scaling.evaluation.conformal.ResidualScale`) or the model's own spread (an ensemble's σ, 1 for a point "

@@ -232,14 +232,22 @@ def design_descriptor(spec: LoaderSpec) -> np.ndarray:
     ])
 
 
-def nearest_machine(target: LoaderSpec, candidates: Mapping[str, LoaderSpec]) -> str:
-    """The candidate whose :func:`design_descriptor` is nearest to the target's (standardised over candidates)."""
+def nearest_machines(target: LoaderSpec, candidates: Mapping[str, LoaderSpec], k: int = 1) -> list[str]:
+    """The ``k`` candidates whose :func:`design_descriptor` is nearest to the target's (standardised over
+    candidates), nearest first (ties by name)."""
+    if k < 1:
+        raise ValueError(f"k must be at least 1, got {k}")
     names = sorted(candidates)
     x = np.array([design_descriptor(candidates[n]) for n in names])
     sd = x.std(axis=0)
     sd[sd == 0] = 1.0
     d = np.linalg.norm((x - design_descriptor(target)) / sd, axis=1)
-    return names[int(np.argmin(d))]
+    return [names[i] for i in np.argsort(d, kind="stable")[:k]]
+
+
+def nearest_machine(target: LoaderSpec, candidates: Mapping[str, LoaderSpec]) -> str:
+    """The candidate whose :func:`design_descriptor` is nearest to the target's (:func:`nearest_machines`)."""
+    return nearest_machines(target, candidates, 1)[0]
 
 
 def relief_share(frame: pd.DataFrame, specs: Mapping[str, LoaderSpec], level: float = 0.98) -> pd.Series:

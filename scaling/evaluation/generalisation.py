@@ -8,7 +8,10 @@ Three disjoint sets of machines (grouped, never rows of one machine on two sides
 * **test**: machines drawn with another seed, plus presets (the simulated miniature), reported one by one.
 
 A target machine is predicted from its *source*: the training machine nearest in design
-(:func:`~scaling.data.product_line.nearest_machine`), every target row paired with that machine's matched row. Beside
+(:func:`~scaling.data.product_line.nearest_machine`), every target row paired with that machine's matched row; a
+candidate with ``sources=k`` predicts from each of the ``k`` nearest training machines and takes the geometric mean
+of the k forces (one calibrated machine's matched rows carry its own transients: averaged over several, those
+that are not the target's cancel in part). Beside
 every model stand baselines: direct Buckingham-Pi (δ1 ≡ 1) with matched rows of the ER12 and of the nearest
 training machine, and the linkage statics F21 ≈ tilt_ratio · |Pf_tilt| (design and pose only, no learning).
 
@@ -38,10 +41,11 @@ from scaling.data.product_line import (
     add_design_signals,
     design_descriptor,
     matched_pairs,
-    nearest_machine,
+    nearest_machines,
     training_pairs,
 )
 from scaling.data.recordings import SOILS, load_or_generate
+from scaling.dimensions.factors import scaled_variable
 from scaling.dimensions.group_choice import PI1, POSE_GROUPS, choose_groups
 from scaling.dimensions.groups import PiGroup
 from scaling.evaluation.conformal import (
@@ -73,6 +77,10 @@ class Candidate:
     build: Callable[[], DeltaModel]
     groups: tuple[PiGroup, ...]
     output: PiGroup = PI1
+    #: source machines per target, nearest first; the prediction is the geometric mean of theirs
+    sources: int = 1
+    #: name of an earlier candidate whose fitted model this one uses (judged with other ``sources``), or None
+    same_model_as: str | None = None
 
 
 @dataclass
@@ -237,6 +245,37 @@ def _predict(model: DeltaModel | None, pairs: DeltaDataset) -> tuple[np.ndarray,
     return model.predict_log(pairs), np.ones(len(pairs))
 
 
+def combine_sources(model: DeltaModel | None, per_source: Sequence[DeltaDataset]
+                    ) -> tuple[DeltaDataset, np.ndarray, np.ndarray, np.ndarray]:
+    """One prediction of a target's rows from the matched pairs of one or more source machines.
+
+    Returns ``(pairs, ln δ1, scale, value)``: the first source's pairs restricted to the target rows every source
+    matched (by episode and time), the scaled variable predicted (N for F21) as the geometric mean over the
+    sources' predictions, expressed as the equivalent ln δ1 of the first source (so ``pairs.log_delta - ln δ1`` is
+    the log residual of the mean), and the uncertainty scale (root mean square over the sources).
+    """
+    if not per_source:
+        raise ValueError("need at least one source's pairs")
+    if len(per_source) > 1:
+        keys = [set(zip(p.episode, p.t, strict=True)) for p in per_source]
+        common = set.intersection(*keys)
+        per_source = [p.subset(np.flatnonzero([(e, t) in common for e, t in zip(p.episode, p.t, strict=True)]))
+                      for p in per_source]
+    outs = [_predict(model, p) for p in per_source]
+    values = [p.recover(np.exp(lp)) for p, (lp, _) in zip(per_source, outs, strict=True)]
+    first, (log_pred, _) = per_source[0], outs[0]
+    scale = np.sqrt(np.mean([sc**2 for _, sc in outs], axis=0))
+    if len(per_source) == 1:
+        return first, log_pred, scale, values[0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        logs = np.log(np.abs(np.stack(values)))
+        value = np.sign(values[0]) * np.exp(np.mean(logs, axis=0))
+        # recover() gives v ∝ δ1^(-1/e): the δ1 of the first source that recovers the mean value
+        _, exponent = scaled_variable(first.output_group, first.target_variable)
+        log_pred = log_pred + float(exponent) * (logs[0] - np.log(np.abs(value)))
+    return first, log_pred, scale, value
+
+
 def _errors(pred: np.ndarray, actual: np.ndarray) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.abs(pred - actual) / actual
@@ -254,7 +293,10 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
     say = progress or (lambda _msg: None)
     by_machine = {str(m): g.reset_index(drop=True) for m, g in frame.groupby(frame["machine"].astype(str))}
     train_specs = {m: split.specs[m] for m in split.train}
-    source_of = {m: nearest_machine(split.specs[m], train_specs) for m in (*split.calibration, *split.test)}
+    judged_from = {cand.name: cand.sources for cand in candidates}  # source machines per judged target
+    k_max = max([1, *judged_from.values()])
+    sources_of = {m: nearest_machines(split.specs[m], train_specs, k_max) for m in (*split.calibration, *split.test)}
+    source_of = {m: s[0] for m, s in sources_of.items()}
     results: list[MachineResult] = []
     fit_seconds: dict[str, float] = {}
     models: dict[str, DeltaModel | None] = {"direct-Pi (ER12)": None, "direct-Pi (nearest machine)": None}
@@ -267,6 +309,15 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
     training_sample: dict[str, np.ndarray] = {}
     calibration: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     for cand in candidates:
+        if cand.same_model_as is not None:
+            if cand.same_model_as not in models or models[cand.same_model_as] is None:
+                raise ValueError(f"{cand.name!r}: no earlier fitted candidate {cand.same_model_as!r}")
+            base = cand.same_model_as
+            models[cand.name] = models[base]
+            for store in (training_range, training_sample, novelty):
+                store[cand.name] = store[base]  # type: ignore[index]
+            groups_of[cand.name], output_of[cand.name] = groups_of[base], output_of[base]
+            continue
         train = pd.concat([training_rows(by_machine[m], (*cand.groups, cand.output)) for m in split.train],
                           ignore_index=True)
         pairs = training_pairs(train, cand.output, cand.groups, n_sources=n_sources, seed=seed)
@@ -290,12 +341,14 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
     machine_score = {m: float(extrap.score(design_descriptor(split.specs[m]))[0])
                      for m in (*split.calibration, *split.test)}
 
+    def sources(name: str, target: str) -> list[str]:
+        return [split.reference] if name == "direct-Pi (ER12)" else sources_of[target][: judged_from.get(name, 1)]
+
     def predict(name: str, target: str) -> _Predicted:
-        src_machine = split.reference if name == "direct-Pi (ER12)" else source_of[target]
         tgt = judged[target]
-        pairs = matched_pairs(by_machine[src_machine], tgt, output_of[name], groups_of[name])
-        log_pred, scale = _predict(models[name], pairs)
-        pred = pairs.recover(np.exp(log_pred))
+        per_source = [matched_pairs(by_machine[s], tgt, output_of[name], groups_of[name])
+                      for s in sources(name, target)]
+        pairs, log_pred, scale, pred = combine_sources(models[name], per_source)
         f21 = pairs.target_values()
         kind = row_kinds(pairs, tgt)
         features = np.column_stack([np.log(scale), np.log(novelty[name].score(pairs.pi_target)),
@@ -350,8 +403,8 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
                 served_features = RowRisk.features(row_risks[name].novelty, p.g, p.log_pred, p.features[:, -1])
                 half = row_intervals[name].half_width(served_features, 0.9)
                 inside_served = (np.abs(p.pairs.log_delta - p.log_pred) <= half).astype(float)
-            results.append(_summarise(m, name, source_of[m] if name != "direct-Pi (ER12)" else split.reference,
-                                      p.err, p.kind, p.pred, p.f21, inside, inside_spread, inside_served))
+            results.append(_summarise(m, name, "+".join(sources(name, m)), p.err, p.kind, p.pred, p.f21, inside,
+                                      inside_spread, inside_served))
             scorer = error_scores.get(name)
             risk = scorer.score(p.features) if scorer else np.full(len(p.err), np.nan)
             warn_share.setdefault(name, {})[m] = float(np.mean(scorer.above(risk))) if scorer else float("nan")

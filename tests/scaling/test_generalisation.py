@@ -109,3 +109,34 @@ def test_relief_share_counts_dig_rows_at_either_relief() -> None:
                           "p_lift": [0.99 * pl, 0.5 * pl, -0.99 * pl, 0.1 * pl, pl],
                           "p_tilt": [0.0, 0.97 * pt, 0.0, -pt, pt]})
     assert relief_share(frame, {"er12": spec})["er12"] == pytest.approx(3 / 4)
+
+
+def test_several_sources_give_the_geometric_mean_of_their_forces(frame: pd.DataFrame, split: Split) -> None:
+    """A candidate judged from the 2 nearest training machines: its F21 per row is the geometric mean of the forces
+    predicted from each source alone (computed here by hand from matched pairs), its ln δ1 recovers that mean from
+    the first source's pairs, it reuses the fitted model of the one-source candidate without refitting, and its
+    rows name both sources, nearest first."""
+    from scaling.data.product_line import matched_pairs, nearest_machines
+    from scaling.evaluation.generalisation import combine_sources
+
+    one = Candidate("ffnn", lambda: FFNN(hidden_layers=1, units=16, epochs=60, include_source=True), GROUPS)
+    two = Candidate("ffnn, 2 sources", one.build, GROUPS, sources=2, same_model_as="ffnn")
+    result = evaluate(frame, split, [one, two])
+    assert result.models["ffnn, 2 sources"] is result.models["ffnn"] and "ffnn, 2 sources" not in result.fit_seconds
+    model = result.models["ffnn"]
+    by = {m: g.reset_index(drop=True) for m, g in frame.groupby("machine")}
+    train_specs = {m: split.specs[m] for m in split.train}
+    for m in split.test:
+        near = nearest_machines(split.specs[m], train_specs, 2)
+        row = result.frame().query("machine == @m and model == 'ffnn, 2 sources'").iloc[0]
+        assert row.source == "+".join(near)
+        tgt = by[m][judged_rows(by[m])].reset_index(drop=True)
+        per_source = [matched_pairs(by[s], tgt, PI1, GROUPS) for s in near]
+        pairs, log_pred, _, value = combine_sources(model, per_source)
+        by_hand = np.sqrt(np.abs(per_source[0].recover(np.exp(model.predict_log(per_source[0])))
+                                 * per_source[1].recover(np.exp(model.predict_log(per_source[1])))))
+        assert len(pairs) == len(per_source[0]) == len(per_source[1])  # every source matched every judged row
+        np.testing.assert_allclose(np.abs(value), by_hand, rtol=1e-9)
+        np.testing.assert_allclose(pairs.recover(np.exp(log_pred)), value, rtol=1e-9)
+    with pytest.raises(ValueError, match="no earlier fitted"):
+        evaluate(frame, split, [Candidate("lonely", one.build, GROUPS, sources=2, same_model_as="ffnn")])
