@@ -407,3 +407,17 @@ def test_face_dig_approach_lowers_a_raised_boom_at_full_speed() -> None:
     assert lift(0.2) == -1.0
     assert lift(0.03) == pytest.approx(-0.3)
     assert lift(0.0) == 0.0
+
+
+@pytest.mark.slow
+def test_search_hints_are_current() -> None:
+    """The stored first passing candidates of the dump-linkage search (SEARCH_HINTS) are what a full search finds for
+    today's presets, and a preset without a hint passes with the offsets themselves."""
+    import hashlib
+
+    from scaletwin_envs.envs.dump_linkage import SEARCH_HINTS, first_passing_attempt
+
+    for name in ("mini", "er12", "wa475"):
+        spec = make_loader(name)
+        key = hashlib.sha256(spec.to_json().encode()).hexdigest()
+        assert SEARCH_HINTS.get(key, 0) == first_passing_attempt(spec), name
