@@ -18,8 +18,6 @@ import contextlib
 import io
 import math
 import os
-import signal
-from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -35,6 +33,7 @@ from hypothesis import strategies as st  # noqa: E402
 import zoo  # noqa: E402
 from scaletwin.cli import main  # noqa: E402
 from scaletwin_envs.recording.importer import check_unit_expression  # noqa: E402
+from tests.timeouts import no_hang  # noqa: E402
 from zoo.scaling_kind import check_rows  # noqa: E402
 from zoo.serving import InputError, read_table  # noqa: E402
 from zoo.serving.inputs import split_header, to_matrix  # noqa: E402
@@ -77,22 +76,6 @@ def base() -> pd.DataFrame:
 @pytest.fixture(scope="module")
 def variables() -> tuple[str, ...]:
     return tuple(zoo.load(MODEL).target_variables)
-
-
-@contextlib.contextmanager
-def no_hang(seconds: int = HANG_S) -> Iterator[None]:
-    """Fail (TimeoutError) instead of hanging when the block takes longer than ``seconds``."""
-
-    def alarm(signum: int, frame: Any) -> None:
-        raise TimeoutError(f"no answer within {seconds} s")
-
-    previous = signal.signal(signal.SIGALRM, alarm)
-    signal.alarm(seconds)
-    try:
-        yield
-    finally:
-        signal.alarm(0)
-        signal.signal(signal.SIGALRM, previous)
 
 
 def column_of(frame: pd.DataFrame, name: str) -> int | None:
@@ -211,7 +194,7 @@ def test_importer_reads_right_or_names_the_problem(fmt: str, base: pd.DataFrame,
     def read_mangled(case: Case, damage: str, cut: float) -> None:
         path = write(case, folder, fmt, damage, cut)
         try:
-            with no_hang():
+            with no_hang(HANG_S):
                 matrix = to_matrix(read_table(path), variables, str(path))
         except InputError as exc:
             message = str(exc)
@@ -240,7 +223,7 @@ def test_predict_answers_or_names_the_file(fmt: str, base: pd.DataFrame, variabl
         path = write(case, folder, fmt, damage, cut)
         out.unlink(missing_ok=True)
         stdout, stderr = io.StringIO(), io.StringIO()
-        with no_hang(), contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
+        with no_hang(HANG_S), contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
             code = main(["predict", "--model", MODEL, "--target", str(path), "--out", str(out)])
         err = stderr.getvalue()
         assert "Traceback" not in err

@@ -76,6 +76,10 @@ DRIFT_HALF_EVIDENCE = -1.0
 DRIFT_SPECTRUM_TOLERANCE = QUIET_EVIDENCE
 DIFFUSE = 1e6  # prior variance of the record's mean level, relative to the noise (the constant is not noise)
 MIN_DRIFT_STEPS = 24  # shorter records say nothing about long time scales
+#: A drift common to the recording's channels (:func:`common_drift`) needs at least this many channels ...
+MIN_POOL = 3
+#: ... and at least this share of them gaining by it.
+POOL_SHARE = 0.5
 
 
 @dataclass(frozen=True)
@@ -318,10 +322,78 @@ def sensor_noise(residual: np.ndarray, spread: np.ndarray, twin: np.ndarray | No
     With ``twin`` (steps, signals, the twin's signals the residual is taken against), what the twin's own signal,
     its rate of change and a constant explain in each column is removed first: a gain, bias or delay on a channel
     is a discrepancy, not noise (left in, a gain on a pressure with sharp relief steps reads as drift, and the
-    whitening would then hide the very gain)."""
+    whitening would then hide the very gain). A random walk common to the channels is then looked for on the
+    residual before that removal (:func:`common_drift`: the twin's slow signals absorb a slow walk)."""
+    raw = residual
     if twin is not None:
         residual = _unexplained_by(residual, twin)
-    return [estimate_channel(residual[:, j], NOISE_FLOOR * float(spread[j])) for j in range(residual.shape[1])]
+    channels = [estimate_channel(residual[:, j], NOISE_FLOOR * float(spread[j])) for j in range(residual.shape[1])]
+    return common_drift(raw, channels)
+
+
+def drift_gains(residual: np.ndarray, shorts: list[ChannelNoise]) -> np.ndarray:
+    """Log-likelihood gain (over none) of a random walk beside each channel's short-scale noise ``shorts``, at
+    every relative rate of :data:`DRIFT_GRID` (increment variance per step / the channel's ``sd``²): (channels,
+    rates), on ``residual`` (steps, channels) with its steps clipped as in :func:`estimate_drift` and its level
+    diffuse (:func:`level_loglik`, all channels and rates at once). Zero for a channel too short or not finite."""
+    steps, n = residual.shape
+    d = np.diff(residual, axis=0)
+    ok = np.all(np.isfinite(d), axis=0) & (steps - 1 >= MIN_DRIFT_STEPS)
+    if not np.any(ok):
+        return np.zeros((n, len(DRIFT_GRID)))
+    x = np.zeros((steps, n))
+    x[1:, ok] = np.cumsum(np.stack([robust_clip(d[:, j]) for j in np.flatnonzero(ok)], axis=1), axis=0)
+    white2 = np.array([c.white**2 for c in shorts])[:, None]
+    rho = np.array([c.rho for c in shorts])[:, None]
+    c2 = np.array([c.coloured**2 for c in shorts])[:, None]
+    var = np.maximum(white2 + c2, 1e-300)
+    q = np.concatenate([np.zeros((n, 1)), DRIFT_GRID[None, :] * var], axis=1)  # (channels, 1 + rates)
+    p00, p01 = np.broadcast_to(c2, q.shape).copy(), np.zeros(q.shape)
+    p11 = np.broadcast_to(DIFFUSE * var, q.shape).copy()
+    c, level, loglik = np.zeros(q.shape), np.zeros(q.shape), np.zeros(q.shape)
+    for value in x:  # the Kalman filter of level_loglik, one row of channels × rates per step
+        s = np.maximum(p00 + 2.0 * p01 + p11 + white2, 1e-300)
+        nu = value[:, None] - c - level
+        loglik -= 0.5 * (np.log(2.0 * np.pi * s) + nu * nu / s)
+        k0, k1 = (p00 + p01) / s, (p01 + p11) / s
+        c, level = rho * (c + k0 * nu), level + k1 * nu
+        p00, p01, p11 = p00 - k0 * k0 * s, p01 - k0 * k1 * s, p11 - k1 * k1 * s
+        p00, p01, p11 = rho**2 * p00 + c2 * (1.0 - rho**2), rho * p01, p11 + q
+    return np.where(ok[:, None], loglik[:, 1:] - loglik[:, :1], 0.0)
+
+
+def common_drift(raw: np.ndarray, channels: list[ChannelNoise]) -> list[ChannelNoise]:
+    """``channels`` with a random walk common to the recording's sensors where the record shows one.
+
+    A record of a few seconds holds too little of a slow walk for one channel's test (:func:`estimate_drift`) to
+    see it, and the twin's own slow signals, regressed out before the short-scale noise is estimated, absorb much
+    of what it holds (the ramp of a curl in ``bucket_pitch`` took a walk of 3.5 noise SDs whole). Sensors of one
+    machine and logger drift alike (temperature, supply), so the walk's rate relative to each channel's
+    short-scale variance is tested on all channels of ``raw`` (steps, channels; the residual with only a constant
+    removed, by the walk's diffuse level) together: the summed log-likelihood gain (:func:`drift_gains`) must
+    reach :data:`DRIFT_EVIDENCE`, at least :data:`POOL_SHARE` of the channels must gain by it (a slow discrepancy
+    moves some channels, a drifting logger all), and neither half of the record may lose by it, summed over the
+    channels (a walk's increments are stationary, a discrepancy acts in some phases of the cycle). A channel
+    without its own drift then gets the common rate unless its own gain at that rate is below
+    :data:`DRIFT_HALF_EVIDENCE`. Fewer than :data:`MIN_POOL` channels: unchanged."""
+    if len(channels) < MIN_POOL or len(raw) <= 2 * MIN_DRIFT_STEPS:
+        return channels
+    shorts = [dataclasses.replace(c, drift=0.0) for c in channels]
+    gains = drift_gains(raw, shorts)
+    total = gains.sum(axis=0)
+    best = int(np.argmax(total))
+    if total[best] < DRIFT_EVIDENCE or float(np.mean(gains[:, best] > 0.0)) < POOL_SHARE:
+        return channels
+    half = len(raw) // 2
+    for part in (raw[:half], raw[half:]):
+        if float(np.sum(drift_gains(part, shorts)[:, best])) < 0.0:
+            return channels
+    out = []
+    for j, c in enumerate(channels):
+        if c.drift == 0.0 and gains[j, best] >= DRIFT_HALF_EVIDENCE:
+            c = dataclasses.replace(c, drift=float(np.sqrt(DRIFT_GRID[best]) * c.sd))
+        out.append(c)
+    return out
 
 
 def _unexplained_by(residual: np.ndarray, twin: np.ndarray) -> np.ndarray:

@@ -36,8 +36,6 @@ import io
 import math
 import os
 import re
-import signal
-from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -57,6 +55,7 @@ from discrepancy.data.fieldlog import MAX_GAP_STEPS  # noqa: E402
 from scaletwin.cli import main  # noqa: E402
 from scaletwin_envs.recording.schema import COMMAND_COLUMNS  # noqa: E402
 from scaletwin_envs.signal_units import SIGNAL_UNITS  # noqa: E402
+from tests.timeouts import no_hang  # noqa: E402
 
 #: Examples per property and format: enough to meet every mutation several times, few enough for seconds
 #: ($SCALETWIN_BAD_FILES_EXAMPLES tries more, e.g. 2000, with random instead of fixed examples).
@@ -210,22 +209,6 @@ def quantity(header: str) -> str:
 def role(name: str) -> str:
     """What a column is to the reader: ``time``, ``command``, ``signal`` or ``phase``."""
     return name if name in ("time", "phase") else "command" if name in COMMAND_COLUMNS else "signal"
-
-
-@contextlib.contextmanager
-def no_hang(seconds: int = HANG_S) -> Iterator[None]:
-    """Fail (TimeoutError) instead of hanging when the block takes longer than ``seconds``."""
-
-    def alarm(signum: int, frame: Any) -> None:
-        raise TimeoutError(f"no answer within {seconds} s")
-
-    previous = signal.signal(signal.SIGALRM, alarm)
-    signal.alarm(seconds)
-    try:
-        yield
-    finally:
-        signal.alarm(0)
-        signal.signal(signal.SIGALRM, previous)
 
 
 @dataclass
@@ -624,7 +607,7 @@ def read_as_diagnose(path: Path, dt: float) -> tuple[EpisodeData | RecordingErro
         except RecordingError as exc:
             return exc
 
-    with no_hang():
+    with no_hang(HANG_S):
         try:
             rec = read_log(path)
         except RecordingError as exc:
