@@ -4,7 +4,8 @@ The web viewer takes two ports: HTTP (``--port``, the page) and gRPC (``--grpc-p
 fetches from rerun's message proxy). The address printed opens the recording directly
 (``http://127.0.0.1:HTTP/?url=rerun+http://127.0.0.1:GRPC/proxy``, URL-encoded); the bare HTTP address shows
 rerun's welcome page only. A port left at its default moves to a free one when taken (a second viewer then just
-works); one given explicitly must be free; 0 picks a free one. On a remote machine both ports must be forwarded,
+works); one given explicitly must be free; 0 picks a free one. The address is printed once the page is served, so
+it opens at once. On a remote machine both ports must be forwarded,
 e.g. ``ssh -L 9090:127.0.0.1:9090 -L 9876:127.0.0.1:9876 user@host``, which the command prints.
 """
 
@@ -15,6 +16,7 @@ import os
 import socket
 import subprocess
 import sys
+import time
 from pathlib import Path
 from urllib.parse import quote
 
@@ -23,6 +25,7 @@ from scaletwin.cli import CommandError
 DEFAULT_HTTP_PORT = 9090  # rerun's default web viewer port
 DEFAULT_GRPC_PORT = 9876  # rerun's default gRPC (message proxy) port
 HOST = "127.0.0.1"
+READY_S = 60.0  # how long the web viewer may take to serve its page before the command gives up (s)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -127,5 +130,31 @@ def run(args: argparse.Namespace) -> int:
         print(" ".join(cmd))
         print(web_instructions(http, grpc))
         return 0
-    print(web_instructions(http, grpc) + "\n  (Ctrl-C to stop)", flush=True)
-    return subprocess.call(cmd)
+    with subprocess.Popen(cmd) as proc:
+        try:
+            if not wait_listening(http, proc, READY_S):
+                return proc.wait() or 1  # rerun ended (it said why), or never bound the port
+            print(web_instructions(http, grpc) + "\n  (Ctrl-C to stop)", flush=True)
+            return proc.wait()
+        except KeyboardInterrupt:
+            proc.terminate()
+            proc.wait()
+            return 130
+
+
+def wait_listening(port: int, proc: subprocess.Popen, timeout: float, host: str = HOST) -> bool:
+    """Wait until ``host:port`` accepts connections (the viewer's page is served), so that the address printed
+    opens at once; False if ``proc`` ended first or ``timeout`` (s) passed (then ``proc`` is stopped)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            return False
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+            s.settimeout(0.5)
+            if s.connect_ex((host, port)) == 0:
+                return True
+        time.sleep(0.1)
+    print(f"scaletwin view: the web viewer did not open port {port} within {timeout:.0f} s; stopping it",
+          file=sys.stderr)
+    proc.terminate()
+    return False

@@ -182,3 +182,11 @@ def test_scale_accepts_a_loader_spec_and_distortions() -> None:
     env = gym.make(scaletwin_envs.ENV_ID, scale=0.7, law="froude", distortion={"mass": 1.1})
     assert env.unwrapped.loader.operating_mass == pytest.approx(
         1.1 * scaletwin_envs.make_loader(0.7, law="froude").operating_mass)
+
+
+def test_the_randomised_env_passes_both_env_checkers() -> None:
+    """The suite's third env (a new machine size and soil at every reset) meets the same conventions; the checkers
+    reset it several times, so several machines are built and checked."""
+    env = gym.make(scaletwin_envs.RANDOM_ENV_ID)
+    gym_check_env(env.unwrapped, skip_render_check=True)
+    sb3_check_env(env, warn=False)
