@@ -81,9 +81,27 @@ def test_sine_and_ramp_at_500_hz_read_at_the_control_times(jitter: float) -> Non
         return 2.0 + 0.3 * tt + np.sin(2 * np.pi * f0 * tt)
 
     grid = control_grid(t, DT)
-    np.testing.assert_allclose(grid, DT * np.arange(1, 101))  # rows at the END of each control step
+    # rows at the END of each control step, the first at the log's first sample (as at the control step)
+    np.testing.assert_allclose(grid, DT * np.arange(0, 101))
     got = resample_signal(t, truth(t), grid, DT)
-    assert np.max(np.abs(got - truth(grid))) < 2e-3
+    assert np.max(np.abs(got - truth(grid))[1:-1]) < 2e-3
+    # the end rows: the level of a local quadratic over one control step (not the end sample, whose noise is not
+    # filtered), exact to 0.2 %
+    assert np.max(np.abs(got - truth(grid))[[0, -1]]) < 2e-3
+
+
+def test_end_rows_of_a_fast_log_carry_filtered_noise_not_one_samples() -> None:
+    """White noise at 500 Hz read at the control step: the end rows may not carry much more noise than the others
+    (with the end sample as their level they carried its full noise: 6x, a discrepancy in the first window)."""
+    fs = 500.0
+    t = np.arange(0.0, 6.0 + 1e-9, 1 / fs)
+    grid = control_grid(t, DT)
+    rows = np.stack([resample_signal(t, np.random.default_rng(k).standard_normal(len(t)), grid, DT)
+                     for k in range(200)])
+    sd = rows.std(axis=0)
+    inside = float(np.median(sd))
+    assert inside == pytest.approx(np.sqrt(DT * fs) ** -1, rel=0.3)  # ~ averaged over a control step
+    assert sd[0] < 3.5 * inside and sd[-1] < 3.5 * inside  # one sample's noise: 6x
 
 
 def test_tone_above_the_twins_band_does_not_fold_back() -> None:
@@ -96,20 +114,23 @@ def test_tone_above_the_twins_band_does_not_fold_back() -> None:
     got = resample_signal(t, tone, grid, DT)
     inside = (grid > 0.4) & (grid < 9.6)  # half a filter length (0.36 s) from the ends: see resample_signal
     assert np.max(np.abs(got[inside])) < 2e-3
-    assert np.max(np.abs(got[~inside][:-1])) < 0.1  # attenuated less near the ends, not at all on the last sample
+    assert np.max(np.abs(got[~inside][1:-1])) < 0.1  # attenuated less near the ends
+    # the end rows are the log's level there (a local quadratic over one control step): a tone is not filtered
+    assert np.max(np.abs(got[[0, -1]])) < 1.5
 
 
 def test_commands_are_held_per_control_interval() -> None:
     fs = 200.0
     t = np.arange(0.0, 3.0 + 1e-9, 1 / fs)
     step_cmd = np.repeat(np.linspace(-1, 1, 30), 20)  # one value per 0.1 s interval (t_k - dt, t_k]
-    cmds = np.column_stack((np.concatenate(([0.0], step_cmd)), np.zeros(len(t)), np.full(len(t), 0.5)))
+    cmds = np.column_stack((np.concatenate(([-1.5], step_cmd)) / 1.5, np.zeros(len(t)), np.full(len(t), 0.5)))
     grid = control_grid(t, DT)
     out = resample_commands(t, cmds, grid, DT)
-    np.testing.assert_allclose(out[:, 0], np.linspace(-1, 1, 30), atol=1e-9)
+    # the first sample ends the first control step: its command is held back over that whole step
+    np.testing.assert_allclose(out[:, 0], np.concatenate(([-1.0], np.linspace(-1, 1, 30) / 1.5)), atol=1e-9)
     np.testing.assert_allclose(out[:, 2], 0.5, atol=1e-12)
     half = np.where((t > 1.05) & (t <= 1.1), 1.0, 0.0)  # on for the second half of interval 11 only
-    np.testing.assert_allclose(resample_commands(t, half[:, None], grid, DT)[10, 0], 0.5, atol=1e-9)
+    np.testing.assert_allclose(resample_commands(t, half[:, None], grid, DT)[11, 0], 0.5, atol=1e-9)
 
 
 @pytest.mark.parametrize(("fs", "jitter"), [(200.0, 0.0), (1000.0, 0.2)])
@@ -118,16 +139,17 @@ def test_logger_csv_just_works(clean: EpisodeData, tmp_path, fs: float, jitter: 
     path = tmp_path / f"logger_{int(fs)}hz.csv"
     logger_frame(t, cmds, sig, phases).to_csv(path, index=False)
     ep = load_episode(path, control_dt=DT)
-    # the log's first sample is the start of the first control step: row k is the twin's row k + 1
+    # the log's first sample is the end of the first control step, as in the recording: row k is the twin's row k
+    # (a grid one step later made the replay lose the first command and run a step behind the log)
     n = len(ep)
-    assert n == len(clean) - 1 and ep.dt == pytest.approx(DT)
-    np.testing.assert_allclose(ep.time, clean.time[1:], atol=1e-9)
+    assert n == len(clean) and ep.dt == pytest.approx(DT)
+    np.testing.assert_allclose(ep.time, clean.time, atol=1e-9)
     # a jittered sample straddling a boundary lends its command to both intervals for a fraction of its step
-    np.testing.assert_allclose(ep.commands, clean.commands[1:], atol=1e-9 if jitter == 0 else 0.02)
-    assert (ep.phases == clean.phases[1:]).mean() > 0.97  # nearest sample: only at phase changes may it differ
+    np.testing.assert_allclose(ep.commands, clean.commands, atol=1e-9 if jitter == 0 else 0.02)
+    assert (ep.phases == clean.phases).mean() > 0.97  # nearest sample: only at phase changes may it differ
     spread = signal_spread(clean.signals)
     for k, v in clean.signals.items():
-        err = (ep.signals[k] - v[1:]) / spread[k]
+        err = (ep.signals[k] - v) / spread[k]
         # white noise of 0.5 % of the spread, mostly filtered away; the filter leaves the twin's band untouched
         assert np.sqrt(np.mean(err**2)) < 0.01, k
         assert np.max(np.abs(err)) < 0.05, k
@@ -197,7 +219,7 @@ def test_gaps_in_a_fast_log_are_bridged_before_resampling() -> None:
         bridge_gaps(t, x, "F31", MAX_GAP_STEPS * DT)
     cmds = np.zeros((len(t), 3))
     log = prepare_log(t, cmds, {"F31": np.where(np.isnan(x), np.sin(t), x)}, np.full(len(t), ""), DT)
-    assert log.report.resampled and len(log.time) == 50
+    assert log.report.resampled and len(log.time) == 51  # 0 .. 5 s: the first sample ends the first step
 
 
 # -- missing channels ----------------------------------------------------------------------------------------
