@@ -36,6 +36,10 @@ from discrepancy.twin.spec import SimResult
 
 GRID = 5  # grid points per pile quantity in the coarse search (each a replay)
 ANGLES = ("boom_angle", "bucket_angle")
+#: Channels the start angles are solved on from the log's first rows, each divided by its spread (the angles
+#: themselves, or the cylinder extensions that follow from them when a log lacks an angle: without them the angles
+#: were only gridded, five points over their range, and a null log without ``boom_angle`` started visibly off).
+HEAD_CHANNELS = ("boom_angle", "bucket_pitch", "lift_extension", "tilt_extension")
 #: The pile quantities, in the order of the coarse grid (distance first: it moves the contact most).
 PILE = ("pile_distance", "repose_angle", "pile_height")
 COARSE = ("pile_distance", "repose_angle")  # gridded before the joint fit (the height rarely shows; see module)
@@ -135,7 +139,7 @@ def estimate_start(ep: EpisodeData, runner: Runner, skip: int = 0) -> StartEstim
     centre = _nominal(dict(twin.env_kwargs), twin.soil.repose_angle)
     current = {k: c for k, (c, _) in centre.items()}
     default = misfit(fit.run([_start(current)])[0])
-    angles_seen = {"boom_angle", "bucket_pitch"} <= set(ep.signals)
+    angles_seen = len(_head_channels(ep)) >= len(ANGLES)
     if angles_seen:
         fit.replays += _solve_angles(ep, runner, current, skip)
     z: np.ndarray | None = None
@@ -203,10 +207,13 @@ def _levenberg_marquardt(fit: _Fit, centre: dict[str, tuple[float, float]], curr
 
 
 def _solve_angles(ep: EpisodeData, runner: Runner, current: dict[str, float], skip: int = 0) -> int:
-    """Start angles of boom and bucket from the log's first rows: Newton on the first :data:`HEAD` control steps
-    (cheap replays; the pile is not met yet), finite-difference Jacobian; updates ``current``, returns replays."""
+    """Start angles of boom and bucket (rad) from the log's first rows: Gauss–Newton on the first :data:`HEAD` control
+    steps of the :data:`HEAD_CHANNELS` it has, each relative to its spread (cheap replays; the pile is not met yet),
+    finite-difference Jacobian; updates ``current``, returns replays."""
     rows = slice(skip, skip + HEAD)
-    target = np.array([ep.signals["boom_angle"][rows], ep.signals["bucket_pitch"][rows]]).ravel()
+    names = _head_channels(ep)
+    scale = np.array([max(float(np.ptp(ep.signals[c])), 1e-12) for c in names])[:, None]
+    target = (np.array([ep.signals[c][rows] for c in names]) / scale).ravel()
     head = ep.commands[:skip + HEAD]
     replays = 0
     for _ in range(NEWTON):
@@ -218,7 +225,7 @@ def _solve_angles(ep: EpisodeData, runner: Runner, current: dict[str, float], sk
         replays += 3
         if any(r.error for r in results):
             break
-        y = [np.array([r.signals["boom_angle"][rows], r.signals["bucket_pitch"][rows]]).ravel() for r in results]
+        y = [(np.array([r.signals[c][rows] for c in names]) / scale).ravel() for r in results]
         jac = np.stack([(y[1] - y[0]) / ANGLE_STEP, (y[2] - y[0]) / ANGLE_STEP], axis=1)
         step, *_ = np.linalg.lstsq(jac, target - y[0], rcond=None)
         x = np.clip(x + step, -0.3, 0.3)
@@ -226,6 +233,11 @@ def _solve_angles(ep: EpisodeData, runner: Runner, current: dict[str, float], sk
         if np.max(np.abs(step)) < 1e-5:
             break
     return replays
+
+
+def _head_channels(ep: EpisodeData) -> list[str]:
+    """The :data:`HEAD_CHANNELS` the log has, finite throughout."""
+    return [c for c in HEAD_CHANNELS if c in ep.signals and np.all(np.isfinite(ep.signals[c]))]
 
 
 def _start(values: dict[str, float]) -> Start:

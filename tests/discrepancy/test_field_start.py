@@ -11,6 +11,7 @@ import pytest
 from discrepancy import TwinSpec
 from discrepancy.bench.synth import simulate
 from discrepancy.data.episode import EpisodeData, signal_spread
+from discrepancy.twin.plant import Plan
 from discrepancy.twin.runner import SerialRunner
 from discrepancy.twin.start import estimate_start
 from scaletwin_envs.specs import make_loader, make_soil
@@ -51,3 +52,25 @@ def test_pile_and_pose_recovered_from_a_log_without_seed(seedless_log: tuple[Twi
     else:
         assert got["pile_height"] == pytest.approx(TRUTH["pile_height"], rel=0.03)
     assert est.misfit < 0.1 * est.misfit_default
+
+
+
+#: Start angles (rad) off the grid the angles were searched on without their channels (centre ± 2 half-ranges in
+#: five points: boom 0.015 ± 0.03, bucket 0 ± 0.06).
+ANGLES_TRUTH = {"boom_angle": 0.0222, "bucket_angle": -0.0171}
+
+
+@pytest.mark.parametrize("dropped", [("boom_angle",), ("boom_angle", "bucket_pitch")])
+def test_start_angles_solved_from_the_extensions_when_a_log_lacks_them(
+        seedless_log: tuple[TwinSpec, EpisodeData], dropped: tuple[str, ...]) -> None:
+    """Without the angle channels the start angles come from the cylinder extensions' first rows (before, they were
+    only gridded, five points over their range, and a null log without ``boom_angle`` started visibly off)."""
+    twin, ep = seedless_log
+    start = dict(estimate_start(ep, SerialRunner(twin)).options)  # the pile of the log, the angles moved
+    start.update(ANGLES_TRUTH)
+    truth = SerialRunner(twin).run_many(ep.commands, [Plan()], starts=[tuple(sorted(start.items()))])[0]
+    signals = {k: v for k, v in truth.signals.items() if k in ep.signals and k not in dropped}
+    got = dict(estimate_start(dataclasses.replace(ep, signals=signals), SerialRunner(twin)).options)
+    assert got["boom_angle"] == pytest.approx(ANGLES_TRUTH["boom_angle"], abs=1e-3)
+    assert got["bucket_angle"] == pytest.approx(ANGLES_TRUTH["bucket_angle"], abs=1e-3)
+    assert got["pile_distance"] == pytest.approx(start["pile_distance"], rel=0.01)
