@@ -13,10 +13,12 @@ from __future__ import annotations
 
 import argparse
 import os
+import signal
 import socket
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 from urllib.parse import quote
 
@@ -122,7 +124,7 @@ def run(args: argparse.Namespace) -> int:
         if args.dry_run:
             print(" ".join(cmd))
             return 0
-        return subprocess.call(cmd)
+        return run_viewer(cmd)
     http = choose_port(args.port, DEFAULT_HTTP_PORT, "--port")
     grpc = choose_port(args.grpc_port, DEFAULT_GRPC_PORT, "--grpc-port", avoid=(http,))
     cmd = viewer_command(path, True, http, grpc)
@@ -130,21 +132,58 @@ def run(args: argparse.Namespace) -> int:
         print(" ".join(cmd))
         print(web_instructions(http, grpc))
         return 0
-    with subprocess.Popen(cmd) as proc:
+    return run_viewer(cmd, lambda proc: wait_listening(http, proc, READY_S),
+                      web_instructions(http, grpc) + "\n  (Ctrl-C to stop)")
+
+
+def run_viewer(cmd: list[str], ready: Callable[[subprocess.Popen], bool] | None = None, banner: str = "") -> int:
+    """Run the viewer ``cmd`` until it exits or this command is stopped (Ctrl-C or SIGTERM), printing ``banner``
+    once ``ready(proc)`` says it serves (a False ends the run); its exit code, 130 when stopped.
+
+    ``python -m rerun`` starts rerun's binary as a child of its own: the viewer runs in a process group of its own,
+    and the whole group is stopped on the way out, so that no viewer is left serving its ports behind us."""
+    proc = subprocess.Popen(cmd, start_new_session=True)
+
+    def interrupt(signum: int, frame: object) -> None:
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        if ready is not None and not ready(proc):
+            return proc.poll() or 1  # rerun ended (it said why), or never opened its port (stopped below)
+        if banner:
+            print(banner, flush=True)
+        return proc.wait()
+    except KeyboardInterrupt:
+        return 130
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+        stop_group(proc)
+
+
+def stop_group(proc: subprocess.Popen, grace: float = 5.0) -> None:
+    """SIGTERM to ``proc``'s process group (it leads one), SIGKILL after ``grace`` s if anything of it is left."""
+    for sig in (signal.SIGTERM, signal.SIGKILL):
         try:
-            if not wait_listening(http, proc, READY_S):
-                return proc.wait() or 1  # rerun ended (it said why), or never bound the port
-            print(web_instructions(http, grpc) + "\n  (Ctrl-C to stop)", flush=True)
-            return proc.wait()
-        except KeyboardInterrupt:
-            proc.terminate()
-            proc.wait()
-            return 130
+            os.killpg(proc.pid, sig)
+        except ProcessLookupError:
+            return
+        try:
+            proc.wait(timeout=grace)
+        except subprocess.TimeoutExpired:
+            continue
+        deadline = time.monotonic() + grace
+        while time.monotonic() < deadline:  # the leader is gone; wait for the rest of its group
+            try:
+                os.killpg(proc.pid, 0)
+            except ProcessLookupError:
+                return
+            time.sleep(0.05)
 
 
 def wait_listening(port: int, proc: subprocess.Popen, timeout: float, host: str = HOST) -> bool:
     """Wait until ``host:port`` accepts connections (the viewer's page is served), so that the address printed
-    opens at once; False if ``proc`` ended first or ``timeout`` (s) passed (then ``proc`` is stopped)."""
+    opens at once; False if ``proc`` ended first or ``timeout`` (s) passed."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         if proc.poll() is not None:
@@ -156,5 +195,4 @@ def wait_listening(port: int, proc: subprocess.Popen, timeout: float, host: str 
         time.sleep(0.1)
     print(f"scaletwin view: the web viewer did not open port {port} within {timeout:.0f} s; stopping it",
           file=sys.stderr)
-    proc.terminate()
     return False

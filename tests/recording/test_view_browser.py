@@ -25,6 +25,8 @@ from pathlib import Path
 
 import pytest
 
+from scaletwin.cli.view import port_free
+
 pytestmark = pytest.mark.slow
 
 playwright_api = pytest.importorskip("playwright.sync_api",
@@ -97,8 +99,12 @@ def test_the_printed_address_opens_the_recording_in_a_browser(tmp_path: Path) ->
             page.screenshot(path=str(shot))
             browser.close()
     finally:
-        viewer.terminate()
+        viewer.terminate()  # SIGTERM, as a service manager or a closed terminal sends it
         viewer.wait(timeout=30)
+    http_port = int(re.search(r"127\.0\.0\.1:(\d+)/", url).group(1))
+    grpc_port = int(re.search(r"127\.0\.0\.1%3A(\d+)%2Fproxy", url).group(1))
+    for port in (http_port, grpc_port):  # the viewer (rerun's binary, a grandchild) stopped with the command
+        assert port_free(port), f"port {port} still served after scaletwin view was stopped"
     text = state.decode("utf-8", errors="replace")
     assert "app_id=scaletwin" in text, f"the viewer opened no scaletwin recording within {LOAD_S} s: {text[:300]!r}"
     missing = [v for v in VIEWS if v not in text]

@@ -132,3 +132,31 @@ def test_two_real_web_viewers_serve_side_by_side(recorded, tmp_path):
             out, _ = p.communicate(timeout=30)
     first = out.splitlines()[0]
     assert first.startswith("open http://127.0.0.1:") and str(ports[1][1]) in first
+
+
+def test_stopping_the_command_stops_the_viewer_it_started(recorded, tmp_path):
+    """SIGTERM to ``scaletwin view`` alone (as a service manager or a closed terminal sends it) stops rerun's
+    viewer too: ``python -m rerun`` runs rerun's binary as a child of its own, which used to be left serving both
+    ports. The address is printed only once the page is served."""
+    from scaletwin_envs.recording import log_episode_rrd
+
+    path = log_episode_rrd(recorded(), tmp_path / "ep.rrd", scene=False)
+    http, grpc = _free_port(), _free_port()
+    code = f"from scaletwin.cli import main; raise SystemExit(main(['view', {str(path)!r}, '--web', '--port', " \
+           f"'{http}', '--grpc-port', '{grpc}']))"
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=env)
+    try:
+        first = proc.stdout.readline()  # blocks until the address is printed (or the command ends)
+        assert first.startswith("open http://127.0.0.1:"), (first, proc.stderr.read() if proc.poll() else "")
+        assert _listening(http), "the address was printed before the page was served"
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=30) == 130
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    deadline = time.monotonic() + 10
+    while (_listening(http) or _listening(grpc)) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not _listening(http) and not _listening(grpc), "the viewer outlived scaletwin view"
