@@ -48,7 +48,7 @@ from scaling.evaluation.generalisation import (
     linkage_input_groups,
 )
 from scaling.evaluation.metrics import at_rest
-from scaling.models import FFNN
+from scaling.models import FFNN, DeepEnsemble, DeltaModel
 from scaling.models.fitted import model_groups
 from scaling.runs.provenance import code_version, machine, to_jsonable
 from scaling.runs.provenance import versions as scaling_versions
@@ -61,6 +61,11 @@ NAME = "statics-pl"
 SUMMARY = ("δ1 FFNN across a sampled product line (linkage, hydraulics, masses, bucket, traction differ), π1 = "
            "F21/F21_linkage, matched source rows: F21 of a machine of another design from any calibrated one; "
            "interval calibrated on held-out machines.")
+#: The product-line deep ensemble: the same inputs and output, three members, served from three sources.
+ENSEMBLE_NAME = "statics-pl-ens"
+ENSEMBLE_SUMMARY = ("δ1 deep ensemble (3 members) across a sampled product line, π1 = F21/F21_linkage, matched "
+                    "source rows; from one calibrated machine or, best, three (geometric mean, interval calibrated "
+                    "for three sources on held-out machines).")
 DELTA_CONVENTION = ("source = a calibrated machine of the product line, one matched row per target row (same kind, "
                     "nearest in boom angle, bucket pitch and fill: scaling.data.product_line.match_rows); target = the "
                     "machine to predict; δ1 = π1(source)/π1(target), π1 = F21/F21_linkage, and F21_target = "
@@ -83,27 +88,60 @@ class ProductLineBuild:
     executor: str | int | None = 2
     progress: bool = True
     net: dict[str, Any] = field(default_factory=lambda: dict(PRODUCT_LINE_NET))
+    #: checkpoint name and registry summary
+    name: str = NAME
+    summary: str = SUMMARY
+    #: members of a deep ensemble; 0: one FFNN
+    ensemble: int = 0
+    #: source machines the card's second interval and error score are calibrated for (each target row predicted
+    #: from the matched rows of that many calibrated machines, geometric mean: ``ScalingModel.scale_force_sources``);
+    #: 1: none
+    sources: int = 3
+
+    def build_model(self) -> DeltaModel:
+        """The unfitted δ1 model of this checkpoint."""
+        if self.ensemble:
+            return DeepEnsemble(k=self.ensemble, **self.net, seed=self.seed, include_source=True)
+        return FFNN(**self.net, seed=self.seed, include_source=True)
+
+    @property
+    def multi_name(self) -> str:
+        """The name the leave-machine-out judge gives the model judged from :attr:`sources` sources."""
+        return f"{self.name}, {self.sources} sources"
+
+
+def ensemble_build(**changes: Any) -> ProductLineBuild:
+    """The build of :data:`ENSEMBLE_NAME` (``changes`` as for :class:`ProductLineBuild`)."""
+    return ProductLineBuild(**{"name": ENSEMBLE_NAME, "summary": ENSEMBLE_SUMMARY, "ensemble": 3, **changes})
 
 
 def build_product_line(cfg: ProductLineBuild | None = None) -> Path:
-    """Simulate/load the line, fit, judge on held-out machines, write and register ``statics-pl``; its directory."""
+    """Simulate/load the line, fit, judge on held-out machines (from one source, and from :attr:`~ProductLineBuild.
+    sources` sources), write and register the checkpoint (``statics-pl`` by default); its directory."""
     cfg = cfg or ProductLineBuild()
+    if cfg.sources < 1:
+        raise ValueError(f"sources must be at least 1, got {cfg.sources}")
     say = print if cfg.progress else (lambda _msg: None)
     start = time.perf_counter()
     frame = cfg.layout.load(cfg.data_dir, cfg.executor, cfg.progress)
     split = cfg.layout.split()
+    if cfg.sources > len(split.train):
+        raise ValueError(f"sources={cfg.sources} but the layout trains on {len(split.train)} machines")
     groups = linkage_input_groups(frame[frame["machine"].isin(split.train)])
-    candidate = Candidate(NAME, lambda: FFNN(**cfg.net, seed=cfg.seed, include_source=True), groups, PI1_LINKAGE)
-    result = evaluate(frame, split, [candidate], seed=cfg.seed, progress=say)
-    model = result.models[NAME]
+    candidates = [Candidate(cfg.name, cfg.build_model, groups, PI1_LINKAGE)]
+    if cfg.sources > 1:
+        candidates.append(Candidate(cfg.multi_name, cfg.build_model, groups, PI1_LINKAGE, sources=cfg.sources,
+                                    same_model_as=cfg.name))
+    result = evaluate(frame, split, candidates, seed=cfg.seed, progress=say)
+    model = result.models[cfg.name]
     by_machine = {str(m): g.reset_index(drop=True) for m, g in frame.groupby(frame["machine"].astype(str))}
     reference = reference_row(by_machine[split.reference], groups)
     check = check_rows(by_machine[cfg.check], groups)
     fields = card_fields(model, result, reference, check, frame, cfg)
     fields["training"]["build_s"] = time.perf_counter() - start
-    path = save_scaling_model(model, Path(cfg.out_root) / NAME, to_jsonable(fields), check, overwrite=True,
-                              risk=result.row_risk[NAME])
-    register(NAME, path, SUMMARY, cfg.registry)
+    path = save_scaling_model(model, Path(cfg.out_root) / cfg.name, to_jsonable(fields), check, overwrite=True,
+                              risk=result.row_risk[cfg.name])
+    register(cfg.name, path, cfg.summary, cfg.registry)
     return path
 
 
@@ -127,33 +165,79 @@ def check_rows(target: pd.DataFrame, groups: tuple[Any, ...]) -> pd.DataFrame:
     return rows[finite][["machine", "episode", "t", *target_vars]].reset_index(drop=True)
 
 
-def card_fields(model: FFNN, result: GeneralisationResult, reference: pd.Series, check: pd.DataFrame,
-                frame: pd.DataFrame, cfg: ProductLineBuild) -> dict[str, Any]:
-    """Everything the card says (see :mod:`zoo.scaling_kind`)."""
-    assert model.groups_ is not None
-    inputs = tuple(model_groups(model)[1])
-    source_vars, target_vars = served_variables(PI1_LINKAGE, inputs, "F21")
-    residual, machines = result.calibration[NAME]
-    quantiles = {str(c): [-group_weighted_quantile(-residual, machines, (1 + c) / 2),
-                          group_weighted_quantile(residual, machines, (1 + c) / 2)] for c in COVERAGES}
-    lo, hi = result.training_range[NAME]
+def held_out_metrics(result: GeneralisationResult, name: str, presets: tuple[str, ...]
+                     ) -> tuple[dict[str, dict[str, Any]], dict[str, Any]]:
+    """(per held-out machine, summary over the drawn ones, ``presets`` left out) of the judged model ``name``: F21
+    errors, the served interval's coverage, the served error score's warnings, matched direct-Pi beside them."""
     table = result.frame()
-    ours = table[table["model"] == NAME].set_index("machine")
+    ours = table[table["model"] == name].set_index("machine")
     base = table[table["model"] == "direct-Pi (nearest machine)"].set_index("machine")
+    warned, false_alarms = (result.extrapolation[k][name] for k in ("row_risk_warn_share", "row_risk_false_alarms"))
     per_machine = {m: {"source": r.source, "dynamic_mape_pct": r.dynamic_mape, "static_mape_pct": r.static_mape,
                        "peak_error_pct": r.peak_error, "interval_coverage": r.coverage_served,
                        "pooled_interval_coverage": r.coverage_spread, "rows": r.rows,
                        "rows_over_10pct": r.miss_share,
                        "direct_pi_dynamic_mape_pct": float(base.loc[m, "dynamic_mape"]),
                        "direct_pi_static_mape_pct": float(base.loc[m, "static_mape"]),
-                       "risk_warned_share": result.extrapolation["row_risk_warn_share"][NAME][m],
-                       "risk_false_alarms": result.extrapolation["row_risk_false_alarms"][NAME][m]}
+                       "risk_warned_share": warned[m], "risk_false_alarms": false_alarms[m]}
                    for m, r in ours.iterrows()}
-    drawn = ours.drop(index=list(cfg.layout.test_presets), errors="ignore")
+    drawn = ours.drop(index=list(presets), errors="ignore")
+    summary = {"drawn_test_machines": len(drawn),
+               "dynamic_mape_pct_median": float(drawn["dynamic_mape"].median()),
+               "dynamic_mape_pct_worst": float(drawn["dynamic_mape"].max()),
+               "static_mape_pct_median": float(drawn["static_mape"].median()),
+               "static_mape_pct_worst": float(drawn["static_mape"].max()),
+               "interval_coverage_min": float(drawn["coverage_served"].min()),
+               "interval_coverage_max": float(drawn["coverage_served"].max()),
+               "interval_machines_85_95": int(drawn["coverage_served"].between(0.85, 0.95).sum()),
+               "risk_auroc": result.extrapolation["auroc_row_risk"][name],
+               "risk_warned_share_median": float(np.median([warned[m] for m in drawn.index])),
+               "risk_false_alarms_median": float(np.median([false_alarms[m] for m in drawn.index]))}
+    return per_machine, summary
+
+
+def card_fields(model: DeltaModel, result: GeneralisationResult, reference: pd.Series, check: pd.DataFrame,
+                frame: pd.DataFrame, cfg: ProductLineBuild) -> dict[str, Any]:
+    """Everything the card says (see :mod:`zoo.scaling_kind`)."""
+    assert model.groups_ is not None
+    name = cfg.name
+    inputs = tuple(model_groups(model)[1])
+    source_vars, target_vars = served_variables(PI1_LINKAGE, inputs, "F21")
+    residual, machines = result.calibration[name]
+    quantiles = {str(c): [-group_weighted_quantile(-residual, machines, (1 + c) / 2),
+                          group_weighted_quantile(residual, machines, (1 + c) / 2)] for c in COVERAGES}
+    lo, hi = result.training_range[name]
+    per_machine, summary = held_out_metrics(result, name, cfg.layout.test_presets)
     split = cfg.layout.split()
+    multi: dict[str, Any] = {}
+    if cfg.sources > 1:
+        per_k, summary_k = held_out_metrics(result, cfg.multi_name, cfg.layout.test_presets)
+        multi = {"interval": {"sources": cfg.sources, "learned_scale": result.row_interval[cfg.multi_name].state(),
+                              "risk": result.row_risk[cfg.multi_name].score.state(),
+                              "description": f"from {cfg.sources} sources (ScalingModel.scale_force_sources): the "
+                                             "geometric mean of the F21 each source gives; its ln δ1 (that of the "
+                                             "first source which recovers the mean) ± q·s(x) and its error score "
+                                             "calibrated on the calibration machines, each predicted from its "
+                                             f"{cfg.sources} nearest training machines"},
+                 "metrics": {"held_out_machines": per_k, "summary": summary_k}}
+    interval = {"method": "learned-scale", "coverage": cfg.coverage,
+                "learned_scale": result.row_interval[name].state(),
+                "log_delta_residual_quantiles": quantiles,
+                "calibration": f"ln δ1 residuals on the {len(split.calibration)} calibration machines "
+                               "(held out of training). learned_scale (batch path, risk computed): "
+                               "ln δ1 ± q·s(x), s learnt from the served features "
+                               "(scaling.evaluation.conformal.RowInterval, cross-fitted over the calibration "
+                               "machines), q covering the coverage share of the rows of machine_share of the "
+                               "calibration machines (scaling.evaluation.conformal.machine_level_quantile). "
+                               "log_delta_residual_quantiles (row by row, or risk=False): every machine "
+                               "weighing the same, pooled (scaling.evaluation.conformal.group_weighted_quantile)",
+                "description": "δ1·exp(±q·s) or δ1·exp(q) for the residual quantiles q, mapped to F21 "
+                               "(bounds swap)"}
+    if multi:
+        interval["multi_source"] = multi["interval"]
     return {
-        "name": NAME,
-        "description": SUMMARY,
+        "name": name,
+        "description": cfg.summary,
         "predicts": {"variable": "F21", "unit": "N",
                      "quantity": "F21: magnitude of the force on the bucket at its pin to link B (N)",
                      "model_output": "δ1 = π1(source)/π1(target), π1 = F21/F21_linkage",
@@ -166,19 +250,7 @@ def card_fields(model: FFNN, result: GeneralisationResult, reference: pd.Series,
                    "row": {k: float(reference[k]) for k in source_vars},
                    "variables": source_vars, "units": {k: QUANTITY_UNITS[k] for k in source_vars}},
         "inputs": [{"name": k, "unit": QUANTITY_UNITS[k]} for k in target_vars],
-        "interval": {"method": "learned-scale", "coverage": cfg.coverage,
-                     "learned_scale": result.row_interval[NAME].state(),
-                     "log_delta_residual_quantiles": quantiles,
-                     "calibration": f"ln δ1 residuals on the {len(split.calibration)} calibration machines "
-                                    "(held out of training). learned_scale (batch path, risk computed): "
-                                    "ln δ1 ± q·s(x), s learnt from the served features "
-                                    "(scaling.evaluation.conformal.RowInterval, cross-fitted over the calibration "
-                                    "machines), q covering the coverage share of the rows of machine_share of the "
-                                    "calibration machines (scaling.evaluation.conformal.machine_level_quantile). "
-                                    "log_delta_residual_quantiles (row by row, or risk=False): every machine "
-                                    "weighing the same, pooled (scaling.evaluation.conformal.group_weighted_quantile)",
-                     "description": "δ1·exp(±q·s) or δ1·exp(q) for the residual quantiles q, mapped to F21 "
-                                    "(bounds swap)"},
+        "interval": interval,
         "training_range": {"feature": "g_n = s_n·[asinh(π_n^s/2ε_n) − asinh(π_n^t/2ε_n)], then s_n·asinh(π_n^s/2ε_n) "
                                       "(include_source), on the training pairs",
                            "groups": [g.expression() for g in inputs], "min": lo, "max": hi, "margin": RANGE_MARGIN,
@@ -187,25 +259,14 @@ def card_fields(model: FFNN, result: GeneralisationResult, reference: pd.Series,
         "training": {"layout": cfg.layout.to_dict(), "machines": list(split.train),
                      "calibration_machines": list(split.calibration), "units": "SI (N, m, kg, s, rad)",
                      "data_hash": dataset_hash(frame.drop(columns=["episode_key"])),
-                     "model": {"class": "FFNN", "config": model.get_config()}, "seed": cfg.seed,
-                     "fit_s": result.fit_seconds[NAME], "code_version": code_version(),
+                     "model": {"class": type(model).__name__, "config": model.get_config()}, "seed": cfg.seed,
+                     "fit_s": result.fit_seconds[name], "code_version": code_version(),
                      "command": "scaletwin zoo build --product-line (zoo.product_line.build_product_line)",
                      "machine": machine(), "package_versions": scaling_versions()},
         "metrics": {
             "held_out_machines": per_machine,
-            "summary": {"drawn_test_machines": len(drawn),
-                        "dynamic_mape_pct_median": float(drawn["dynamic_mape"].median()),
-                        "dynamic_mape_pct_worst": float(drawn["dynamic_mape"].max()),
-                        "static_mape_pct_median": float(drawn["static_mape"].median()),
-                        "static_mape_pct_worst": float(drawn["static_mape"].max()),
-                        "interval_coverage_min": float(drawn["coverage_served"].min()),
-                        "interval_coverage_max": float(drawn["coverage_served"].max()),
-                        "interval_machines_85_95": int(drawn["coverage_served"].between(0.85, 0.95).sum()),
-                        "risk_auroc": result.extrapolation["auroc_row_risk"][NAME],
-                        "risk_warned_share_median": float(np.median(
-                            [result.extrapolation["row_risk_warn_share"][NAME][m] for m in drawn.index])),
-                        "risk_false_alarms_median": float(np.median(
-                            [result.extrapolation["row_risk_false_alarms"][NAME][m] for m in drawn.index]))},
+            "summary": summary,
+            **({"multi_source": {"sources": cfg.sources, **multi["metrics"]}} if multi else {}),
             "risk_note": "served per row (ScaledForce.risk): P(F21 more than 10 % off) from the novelty of the "
                          "row's features among the training pairs', |ln δ1| and whether the bucket is at rest, "
                          "fitted on the calibration machines; risk_auroc: how well it separates the held-out "

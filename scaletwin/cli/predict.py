@@ -1,13 +1,16 @@
 """``scaletwin predict``: scale F21 from a source machine's recording to a target machine's quantities.
 
     scaletwin predict --model ffnn-eq10 --target wa475.csv [--source er12.parquet] [--out scaled.csv]
+    scaletwin predict --model statics-pl-ens --target new.csv --source a.csv --source b.csv --source c.csv
 
 Files are CSV or Parquet with ``name [unit]`` headers (any unit pint converts, e.g. ``F31 [kN]``, ``x_b [mm]``) or
 scaletwin recordings. The source is one row of the calibrated machine (``--source-row``, default: the file's only
 row; of a longer recording, the row closest to the model's calibrated reference row; for a product-line model such
 as ``statics-pl``, every target row's nearest source row in pose and fill) or one row per target row;
-without ``--source`` the model's own calibrated reference row is used. The output holds the target's
-``machine``/``episode``/``t``/``time`` columns (if any) and ``F21 [N]``, ``F21_lower [N]``, ``F21_upper [N]``,
+without ``--source`` the model's own calibrated reference row is used. A model calibrated for several sources
+(``statics-pl-ens``: 3) takes ``--source`` once per calibrated machine, each paired row by row with the target, and
+scales from their geometric mean with the interval and error score calibrated for that many. The output holds the
+target's ``machine``/``episode``/``t``/``time`` columns (if any) and ``F21 [N]``, ``F21_lower [N]``, ``F21_upper [N]``,
 ``delta1 [1]``, ``extrapolated`` (and ``risk [1]`` where the model serves an error score); it is printed as CSV
 when ``--out`` is not given.
 
@@ -34,6 +37,8 @@ from scaletwin.cli import CommandError
 if TYPE_CHECKING:
     import pandas as pd
 
+    from zoo.serving import ScalingModel
+
 KEEP = ("machine", "episode", "t", "time")
 
 
@@ -41,7 +46,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("predict", help="scale F21 to a target machine with a zoo model (CSV/Parquet with units)")
     p.add_argument("--model", required=True, help="registered zoo name (scaletwin zoo list) or checkpoint directory")
     p.add_argument("--target", required=True, help="target machine's quantities: CSV or Parquet, 'name [unit]'")
-    p.add_argument("--source", help="source machine's recording (default: the model's calibrated reference row)")
+    p.add_argument("--source", action="append",
+                   help="source machine's recording (default: the model's calibrated reference row); give it once "
+                        "per source machine for a model calibrated for several (statics-pl-ens: 3)")
     p.add_argument("--source-row", type=int, help="row of --source to use for every target row (0-based)")
     p.add_argument("--out", help="output .csv or .parquet (default: CSV on stdout)")
     p.add_argument("--coverage", type=float, help="interval level (default: the card's)")
@@ -153,41 +160,63 @@ def matched_source(source: pd.DataFrame, target: pd.DataFrame,
     return source.iloc[idx].reset_index(drop=True)
 
 
+def pick_source(model: ScalingModel, source: pd.DataFrame, target: pd.DataFrame, row: int | None,
+                files: Mapping[str, str | None]) -> pd.DataFrame:
+    """The source rows to scale from: row ``row`` (``--source-row``); every target row's matched row for a
+    product-line model; the file's only row or one per target row as given; else the row nearest the model's
+    calibrated reference."""
+    from zoo.serving import InputError
+
+    if row is not None:
+        if not 0 <= row < len(source):
+            raise CommandError(f"--source-row {row} is outside the {len(source)} source rows")
+        return source.iloc[[row]]
+    if model.include_source and len(source) != len(target):
+        return matched_source(source, target, files)
+    if len(source) in (1, len(target)):
+        return source
+    try:
+        nearest = model.nearest_source_row(source)
+    except InputError as exc:
+        raise naming_files(exc, files) from exc
+    print(f"scaletwin predict: source row {nearest} of {len(source)} (the closest to the model's calibrated "
+          "reference row; choose another with --source-row)", file=sys.stderr)
+    return source.iloc[[nearest]]
+
+
 def run(args: argparse.Namespace) -> int:
     import zoo
     from zoo.serving import InputError, ScalingModel, write_table
     from zoo.serving.inputs import split_header
 
     target = read_input(args.target, "target")
-    source = read_input(args.source, "source") if args.source else None
-    files = {"target": args.target, "source": args.source}
+    paths = list(args.source or [])
+    sources = [read_input(path, "source") for path in paths]
+    files = {"target": args.target, "source": ", ".join(paths) or None}
     try:
         model = zoo.load(args.model)
     except zoo.CheckpointError as exc:
         raise CommandError(str(exc)) from exc
     if not isinstance(model, ScalingModel):
         raise CommandError(f"{args.model} is a {type(model).__name__}, not a scaling model (scaletwin zoo list)")
-    if source is not None:
-        if args.source_row is not None:
-            if not 0 <= args.source_row < len(source):
-                raise CommandError(f"--source-row {args.source_row} is outside the {len(source)} source rows")
-            source = source.iloc[[args.source_row]]
-        elif model.include_source and len(source) != len(target):
-            source = matched_source(source, target, files)
-        elif len(source) not in (1, len(target)):
-            try:
-                row = model.nearest_source_row(source)
-            except InputError as exc:
-                raise naming_files(exc, files) from exc
-            print(f"scaletwin predict: source row {row} of {len(source)} (the closest to the model's calibrated "
-                  "reference row; choose another with --source-row)", file=sys.stderr)
-            source = source.iloc[[row]]
+    if len(sources) > 1:
+        if model.calibrated_sources != len(sources):
+            raise CommandError(f"{model.name} is calibrated for "
+                               f"{model.calibrated_sources or 1} source(s), not {len(sources)}: give --source "
+                               f"{model.calibrated_sources or 1} time(s)")
+        if args.source_row is not None or args.hold is not None:
+            raise CommandError("--source-row and --hold take one --source")
+    sources = [pick_source(model, src, target, args.source_row, {**files, "source": path})
+               for src, path in zip(sources, paths, strict=True)]
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", zoo.ExtrapolationWarning)
         warnings.simplefilter("always", zoo.SourceWarning)
         try:
-            result = model.scale_force(source, target, coverage=args.coverage, hold=args.hold,
-                                        threads=args.threads)
+            if len(sources) > 1:
+                result = model.scale_force_sources(sources, target, coverage=args.coverage, threads=args.threads)
+            else:
+                result = model.scale_force(sources[0] if sources else None, target, coverage=args.coverage,
+                                           hold=args.hold, threads=args.threads)
         except InputError as exc:
             raise naming_files(exc, files) from exc
     for w in caught:

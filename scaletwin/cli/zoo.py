@@ -28,7 +28,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                        help="recordings folder (train/, held_out/; with --product-line train/, test/); simulated "
                             "there if missing (default runs/zoo-data, runs/zoo-product-line)")
     build.add_argument("--product-line", action="store_true",
-                       help="build the product-line checkpoint statics-pl (zoo.product_line) instead of the paper's")
+                       help="build the product-line checkpoints statics-pl and statics-pl-ens (zoo.product_line) "
+                            "instead of the paper's")
     build.add_argument("--only", nargs="+", metavar="NAME", help="only these entries (default: all)")
     build.add_argument("--seed", type=int, default=0, help="pipeline seed (default 0)")
     build.add_argument("--out", help="checkpoint root (default: the package's zoo/checkpoints)")
@@ -52,20 +53,33 @@ def _configured(cfg: Any, args: argparse.Namespace, executor: Any) -> Any:
 
 
 def _build_product_line(args: argparse.Namespace, executor: Any) -> int:
-    from zoo.product_line import NAME, ProductLineBuild, build_product_line
+    from zoo.product_line import ENSEMBLE_NAME, NAME, ProductLineBuild, build_product_line, ensemble_build
 
-    if args.only and list(args.only) != [NAME]:
-        raise CommandError(f"--product-line builds {NAME} only; drop --only")
-    cfg = _configured(ProductLineBuild(data_dir=Path(args.data or "runs/zoo-product-line"), seed=args.seed), args,
-                      executor)
-    path = build_product_line(cfg)
+    names = (NAME, ENSEMBLE_NAME)
+    if args.only and (unknown := sorted(set(args.only) - set(names))):
+        raise CommandError(f"--product-line builds {' and '.join(names)}; not {', '.join(unknown)}")
+    common = {"data_dir": Path(args.data or "runs/zoo-product-line"), "seed": args.seed}
+    builds = {NAME: ProductLineBuild(**common), ENSEMBLE_NAME: ensemble_build(**common)}
     import zoo
 
-    s = zoo.card(path, cfg.registry)["metrics"]["summary"]
-    print(f"{NAME}: {path}\n  held-out drawn machines: F21 error dig {s['dynamic_mape_pct_median']:.1f} % median, "
-          f"{s['dynamic_mape_pct_worst']:.1f} % worst; holds {s['static_mape_pct_median']:.1f} % / "
-          f"{s['static_mape_pct_worst']:.1f} %; 90 % interval coverage {s['interval_coverage_min']:.2f}–"
-          f"{s['interval_coverage_max']:.2f}")
+    for name in args.only or names:
+        cfg = _configured(builds[name], args, executor)
+        path = build_product_line(cfg)
+        metrics = zoo.card(path, cfg.registry)["metrics"]
+        s = metrics["summary"]
+        print(f"{name}: {path}\n  held-out drawn machines: F21 error dig {s['dynamic_mape_pct_median']:.1f} % median, "
+              f"{s['dynamic_mape_pct_worst']:.1f} % worst; holds {s['static_mape_pct_median']:.1f} % / "
+              f"{s['static_mape_pct_worst']:.1f} %; 90 % interval coverage {s['interval_coverage_min']:.2f}–"
+              f"{s['interval_coverage_max']:.2f} ({s['interval_machines_85_95']} of {s['drawn_test_machines']} "
+              "machines in 0.85–0.95)")
+        if "multi_source" in metrics:
+            m = metrics["multi_source"]
+            k, s = m["sources"], m["summary"]
+            print(f"  from {k} sources: dig {s['dynamic_mape_pct_median']:.1f} % median, "
+                  f"{s['dynamic_mape_pct_worst']:.1f} % worst; holds {s['static_mape_pct_median']:.1f} % / "
+                  f"{s['static_mape_pct_worst']:.1f} %; coverage {s['interval_coverage_min']:.2f}–"
+                  f"{s['interval_coverage_max']:.2f} ({s['interval_machines_85_95']} of "
+                  f"{s['drawn_test_machines']} in 0.85–0.95)")
     return 0
 
 
@@ -113,6 +127,22 @@ def run_build(args: argparse.Namespace) -> int:
     return 0
 
 
+def _multi_source_rows(metrics: dict[str, Any]) -> list[tuple[str, str]]:
+    """The held-out summary of a product-line card's multi-source calibration, as (field, text) rows (none without
+    one)."""
+    if "multi_source" not in metrics:
+        return []
+    m = metrics["multi_source"]
+    s = m["summary"]
+    return [(f"from {m['sources']} sources", f"scale_force_sources: {s['drawn_test_machines']} drawn: dig "
+                                             f"{s['dynamic_mape_pct_median']:.1f} % median, "
+                                             f"{s['dynamic_mape_pct_worst']:.1f} % worst; hold "
+                                             f"{s['static_mape_pct_median']:.1f} / {s['static_mape_pct_worst']:.1f} %; "
+                                             f"coverage {s['interval_coverage_min']:.2f}–"
+                                             f"{s['interval_coverage_max']:.2f} ({s['interval_machines_85_95']} in "
+                                             "0.85–0.95)")]
+
+
 def scaling_rows(card: dict[str, Any]) -> list[tuple[str, str]]:
     """The headline fields of a scaling-model card as (field, text) rows (none for other kinds)."""
     if card.get("kind") != "scaling-model":
@@ -135,6 +165,7 @@ def scaling_rows(card: dict[str, Any]) -> list[tuple[str, str]]:
                                       f"{s['static_mape_pct_median']:.1f} / {s['static_mape_pct_worst']:.1f} %; "
                                       f"coverage {s['interval_coverage_min']:.2f}–{s['interval_coverage_max']:.2f}"),
                 ("per machine", machines),
+                *_multi_source_rows(metrics),
                 ("training", f"{len(training['machines'])} machines, calibration on "
                              f"{len(training['calibration_machines'])}, data {training['data_hash']}, seed "
                              f"{training['seed']}, code {training['code_version']}")]

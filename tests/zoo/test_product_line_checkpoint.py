@@ -16,7 +16,7 @@ from safetensors.numpy import load_file
 
 import zoo
 from scaling.data.delta_dataset import DeltaDataset
-from scaling.data.product_line import PI1_LINKAGE, match_rows, nearest_machine
+from scaling.data.product_line import PI1_LINKAGE, match_rows, nearest_machine, nearest_machines
 from scaling.evaluation.conformal import RowInterval, RowRisk, group_weighted_quantile
 from scaling.evaluation.generalisation import LeaveMachineOut, finite_groups, judged_rows, row_kinds
 from scaling.models import load_model
@@ -188,3 +188,78 @@ def test_predict_command_pairs_rows_for_a_product_line_model(built: tuple[Path, 
     assert main(["predict", "--model", str(path), "--source", str(tmp_path / "src.csv"), "--target",
                  str(tmp_path / "bad.csv")]) != 0
     assert "bucket_pitch" in capsys.readouterr().err
+
+
+def _judged_target(frame: pd.DataFrame, machine: str, groups: tuple) -> pd.DataFrame:
+    tgt = frame[frame["machine"] == machine].reset_index(drop=True)
+    tgt = tgt[judged_rows(tgt)].reset_index(drop=True)
+    return tgt[finite_groups(tgt, (*groups, PI1_LINKAGE))].reset_index(drop=True)
+
+
+def test_three_sources_serve_the_judged_prediction_and_coverage(built: tuple[Path, Path, ProductLineBuild]) -> None:
+    """From the three training machines nearest in design, ``scale_force_sources`` gives the geometric mean of the
+    three single-source forces, and on the held-out machine its interval covers exactly the share of rows the
+    card's leave-machine-out judge measured for three sources (two routes to one number: the judge in
+    ``scaling.evaluation.generalisation``, the served path in ``zoo.serving``)."""
+    path, _, cfg = built
+    served = zoo.load(path)
+    card = zoo.card(path)
+    assert served.calibrated_sources == card["interval"]["multi_source"]["sources"] == cfg.sources == 3
+    frame = cfg.layout.load(cfg.data_dir, executor="serial", progress=False)
+    split = cfg.layout.split()
+    groups = model_groups(served.model)[1]
+    for machine in split.test:
+        tgt = _judged_target(frame, machine, groups)
+        names = nearest_machines(split.specs[machine], {m: split.specs[m] for m in split.train}, 3)
+        assert card["metrics"]["multi_source"]["held_out_machines"][machine]["source"] == "+".join(names)
+        sources = []
+        for name in names:
+            src = frame[frame["machine"] == name].reset_index(drop=True)
+            sources.append(src.iloc[match_rows(src, tgt)].reset_index(drop=True))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", zoo.ExtrapolationWarning)
+            out = served.scale_force_sources(sources, tgt.drop(columns=["F21"]))
+            singles = [served.scale_force(s, tgt, risk=False).force for s in sources]
+        np.testing.assert_allclose(out.force, np.exp(np.mean(np.log(singles), axis=0)), rtol=1e-9)
+        assert out.interval_method == "learned-scale, 3 sources"
+        assert np.all(out.lower <= out.force) and np.all(out.force <= out.upper)
+        assert out.risk is not None and np.all((out.risk >= 0) & (out.risk <= 1))
+        f21 = tgt["F21"].to_numpy(float)
+        covered = float(np.mean((out.lower <= f21) & (f21 <= out.upper)))
+        judged = card["metrics"]["multi_source"]["held_out_machines"][machine]["interval_coverage"]
+        assert covered == pytest.approx(judged, abs=1e-9), machine
+    with pytest.raises(zoo.InputError, match="calibrated for 3 sources"):
+        served.scale_force_sources(sources[:2], tgt)
+
+
+def test_predict_command_takes_one_source_per_calibrated_machine(built: tuple[Path, Path, ProductLineBuild],
+                                                                tmp_path: Path,
+                                                                capsys: pytest.CaptureFixture[str]) -> None:
+    """``--source`` three times: every file paired row by row with the target, the answer of
+    ``scale_force_sources``; twice is refused, saying how many the model is calibrated for."""
+    from scaletwin.cli import main
+
+    path, _, cfg = built
+    served = zoo.load(path)
+    frame = cfg.layout.load(cfg.data_dir, executor="serial", progress=False)
+    groups = model_groups(served.model)[1]
+    keep = ["kind", *dict.fromkeys([*served.source_variables, "boom_angle", "bucket_pitch", "fill"])]
+    tgt = _judged_target(frame, "mini", groups)[[c for c in keep if c != "F21"]]
+    tgt.to_csv(tmp_path / "tgt.csv", index=False)
+    files, matched = [], []
+    for name in cfg.layout.split().train[:3]:
+        src = frame[frame["machine"] == name].reset_index(drop=True)[keep]
+        src.to_csv(file := tmp_path / f"{name}.csv", index=False)
+        files += ["--source", str(file)]
+        matched.append(src.iloc[match_rows(src, tgt)].reset_index(drop=True))
+    assert main(["predict", "--model", str(path), *files, "--target", str(tmp_path / "tgt.csv"), "--out",
+                 str(tmp_path / "out.csv")]) == 0
+    out = pd.read_csv(tmp_path / "out.csv")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", zoo.ExtrapolationWarning)
+        expected = served.scale_force_sources(matched, tgt)
+    np.testing.assert_allclose(out["F21 [N]"], expected.force, rtol=1e-9)
+    np.testing.assert_allclose(out["F21_upper [N]"], expected.upper, rtol=1e-9)
+    capsys.readouterr()
+    assert main(["predict", "--model", str(path), *files[:4], "--target", str(tmp_path / "tgt.csv")]) == 2
+    assert "calibrated for 3 source(s), not 2" in capsys.readouterr().err

@@ -41,7 +41,7 @@ import pandas as pd
 
 from scaling.dimensions.factors import LogDistortion, scaled_variable
 from scaling.dimensions.groups import PiGroup
-from scaling.evaluation.conformal import RowInterval, RowRisk
+from scaling.evaluation.conformal import ErrorScore, RowInterval, RowRisk
 from scaling.evaluation.metrics import at_rest
 from scaling.models import DeltaModel
 from scaling.models.fitted import STATIC_STEPS, model_groups
@@ -99,6 +99,9 @@ class ScaledForce:
     coverage: float
     interval_method: str
     risk: np.ndarray | None = None
+    #: the rows whose risk is above the error score's calibrated threshold (the warning counts them); None
+    #: where no risk was computed
+    warned: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.force)
@@ -164,6 +167,14 @@ class ScalingModel:
             self._row_interval = RowInterval.from_state(interval["learned_scale"])
         self._quantiles = {float(c): (float(q[0]), float(q[1]))
                            for c, q in interval.get("log_delta_residual_quantiles", {}).items()}
+        #: (sources, interval, error score) of :meth:`scale_force_sources`, where the card calibrates one
+        self._multi: tuple[int, RowInterval, ErrorScore] | None = None
+        if "multi_source" in interval:
+            if risk is None:
+                raise ValueError("a multi-source interval needs the checkpoint's risk (its novelty rows)")
+            multi = interval["multi_source"]
+            self._multi = (int(multi["sources"]), RowInterval.from_state(multi["learned_scale"]),
+                           ErrorScore.from_state(multi["risk"]))
         rng = card["training_range"]
         g_min, g_max = np.asarray(rng["min"], dtype=float), np.asarray(rng["max"], dtype=float)
         n_features = transform.n_features(len(inputs))
@@ -310,6 +321,67 @@ class ScalingModel:
                                        threads=threads)
         return model.predict_array(x, coverage=coverage, sequences=seqs, threads=threads, risk=risk)
 
+    @property
+    def calibrated_sources(self) -> int | None:
+        """How many source machines :meth:`scale_force_sources` is calibrated for (None: the card has no
+        multi-source interval; use :meth:`scale_force`)."""
+        return None if self._multi is None else self._multi[0]
+
+    def scale_force_sources(self, sources: Sequence[Rows], target: Rows, *, coverage: float | None = None,
+                            threads: int | None = None) -> ScaledForce:
+        """F21 of every target row from several calibrated machines: the geometric mean of the F21 each source
+        gives (:meth:`scale_force`), with the interval and error score the card calibrated for that many sources
+        (on held-out machines, each predicted from its nearest training machines the same way).
+
+        One calibrated machine's matched rows carry its own transients; over several, those the target does not
+        share cancel in part, and a source row that is ill-conditioned for this target (a near-zero tilt load) is
+        outvoted. The error score and interval take the served features of the first source's rows, with the ln δ1
+        of that source which recovers the mean; list the source nearest the target in design first.
+
+        Args:
+            sources: one entry per source machine (:attr:`calibrated_sources` of them), each one row or one
+                matched row per target row (:func:`scaling.data.product_line.match_rows`), any accepted form.
+            target, coverage, threads: as for :meth:`scale_force` (the risk is always computed).
+
+        Raises:
+            InputError: the card has no multi-source calibration, or for another number of sources; bad inputs.
+        """
+        if self._multi is None or self.recurrent:
+            raise InputError(f"{self.name} has no interval calibrated for several sources; use scale_force with one")
+        k, interval, score = self._multi
+        if isinstance(sources, pd.DataFrame | pd.Series | np.ndarray) or len(sources) != k:
+            raise InputError(f"{self.name} is calibrated for {k} sources: give a list of {k} (each one row or one "
+                             "matched row per target row); with one source use scale_force")
+        x = to_matrix(target, self.target_variables, "target")
+        bound = [self.with_source(s) for s in sources]
+        outs = []
+        with warnings.catch_warnings():  # each source's own warnings are replaced by the combined error score's
+            warnings.simplefilter("ignore", ExtrapolationWarning)
+            for model in bound:
+                if model._n_source not in (1, len(x)):
+                    raise InputError(f"a source has {model._n_source} rows; give one row or one per target row "
+                                     f"({len(x)})")
+                outs.append(model.predict_array(x, coverage=coverage, threads=threads, risk=False))
+        logs = np.log(np.abs(np.stack([o.force for o in outs])))
+        force = np.sign(outs[0].force) * np.exp(logs.mean(axis=0))
+        # recover() gives F ∝ δ1^(−1/exponent): the δ1 of the first source that recovers the mean force
+        delta = outs[0].delta1 * np.exp((logs[0] - np.log(np.abs(force))) / self._inv_exp)
+        features = bound[0]._risk_features(x, delta)
+        cov = self._spread(coverage)[0]
+        try:
+            half = interval.half_width(features, cov) * abs(self._inv_exp)
+        except ValueError as exc:
+            raise InputError(f"{self.name}: {exc}") from None
+        risk = score.score(features)
+        warned = score.above(risk)
+        if warned.any():
+            warnings.warn(f"{self.name}: {int(warned.sum())} of {len(warned)} target rows are likely more than "
+                          f"{score.miss:.0%} off from {k} sources (error score above its threshold, calibrated on "
+                          "held-out machines; ScaledForce.risk per row)", ExtrapolationWarning, stacklevel=2)
+        extrapolated = np.logical_or.reduce([o.extrapolated for o in outs])
+        return ScaledForce(self.variable, self.unit, force, force * np.exp(-half), force * np.exp(half), delta,
+                           extrapolated, cov, f"learned-scale, {k} sources", risk, warned)
+
     def predict_array(self, x: np.ndarray, *, coverage: float | None = None,
                       sequences: Sequence[np.ndarray] | np.ndarray | None = None,
                       pick: int | None = None, threads: int | None = None, risk: bool = True) -> ScaledForce:
@@ -335,7 +407,7 @@ class ScalingModel:
         force, lo, hi, delta, outside, g_out = (np.concatenate(c) for c in zip(*parts, strict=True))
         if not np.all(np.isfinite(force)):
             raise InputError(f"target: {int((~np.isfinite(force)).sum())} rows give a non-finite {self.variable}")
-        row_risk = None
+        row_risk = warned = None
         method = "residual-quantiles" if self._row_interval is not None else self.interval_method
         if self.risk is not None and not isinstance(self.kernel, GRUKernel):  # its warnings replace the range's
             if risk:
@@ -353,7 +425,8 @@ class ScalingModel:
                                   stacklevel=3)
         elif outside.any():
             self._warn(g_out, int(outside.sum()), len(outside))
-        return ScaledForce(self.variable, self.unit, force, lo, hi, delta, outside, spread[0], method, row_risk)
+        return ScaledForce(self.variable, self.unit, force, lo, hi, delta, outside, spread[0], method, row_risk,
+                           warned)
 
     def _risk_features(self, x: np.ndarray, delta: np.ndarray) -> np.ndarray:
         """The served features of every row (:meth:`scaling.evaluation.conformal.RowRisk.features`): the novelty of its
