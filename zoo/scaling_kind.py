@@ -14,13 +14,15 @@ Card fields (besides the common ones, :mod:`zoo.checkpoint`):
 ``inputs``            target quantities with their SI units
 ``interval``          method (``residual-quantiles``, ``ensemble`` or ``learned-scale``), coverage, quantiles of ln δ1
                       residuals; ``learned-scale`` adds the per-row interval
-                      (:class:`scaling.evaluation.conformal.RowInterval`)
+                      (:class:`scaling.evaluation.conformal.RowInterval`); ``multi_source`` (product-line cards) the
+                      interval and error score calibrated for several sources
+                      (:meth:`zoo.serving.ScalingModel.scale_force_sources`)
 ``training_range``    per input group, min/max of the distortion feature g on the training pairs
 ``training``          machines, soils, dataset spec and hashes, pipeline config, seed, code version, fit time
-``metrics``           held-out episodes (R² of δ1), held-out machines, miniature errors, the check set
+``metrics``           held-out episodes (R² of δ1), held-out machines, miniature errors, the check set; product-line
+                      cards also ``multi_source``: the held-out machines judged from several sources
 ``risk``              (optional) the error score served per row (:class:`scaling.evaluation.conformal.RowRisk`), its
-novelty rows
-                      in ``risk.safetensors``
+                      novelty rows in ``risk.safetensors``
 """
 
 from __future__ import annotations
