@@ -379,8 +379,10 @@ class ScalingModel:
                           f"{score.miss:.0%} off from {k} sources (error score above its threshold, calibrated on "
                           "held-out machines; ScaledForce.risk per row)", ExtrapolationWarning, stacklevel=2)
         extrapolated = np.logical_or.reduce([o.extrapolated for o in outs])
-        return ScaledForce(self.variable, self.unit, force, force * np.exp(-half), force * np.exp(half), delta,
-                           extrapolated, cov, f"learned-scale, {k} sources", risk, warned)
+        with np.errstate(over="ignore"):  # a width beyond floating point is reported as [0, inf]
+            lo, hi = force * np.exp(-half), force * np.exp(half)
+        return ScaledForce(self.variable, self.unit, force, lo, hi, delta, extrapolated, cov,
+                           f"learned-scale, {k} sources", risk, warned)
 
     def predict_array(self, x: np.ndarray, *, coverage: float | None = None,
                       sequences: Sequence[np.ndarray] | np.ndarray | None = None,
@@ -415,7 +417,8 @@ class ScalingModel:
                 row_risk = self.risk.score.score(features)
                 if self._row_interval is not None:  # δ1·e^(±h) gives F21·e^(∓h/exponent)
                     half = self._row_interval.half_width(features, spread[0]) * self._inv_exp
-                    lo, hi = force * np.exp(-half), force * np.exp(half)
+                    with np.errstate(over="ignore"):  # a width beyond floating point is reported as [0, inf]
+                        lo, hi = force * np.exp(-half), force * np.exp(half)
                     method = self.interval_method
                 warned = self.risk.score.above(row_risk)
                 if warned.any():
