@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from collections.abc import Mapping
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -66,20 +67,10 @@ def _build_product_line(args: argparse.Namespace, executor: Any) -> int:
         cfg = _configured(builds[name], args, executor)
         path = build_product_line(cfg)
         metrics = zoo.card(path, cfg.registry)["metrics"]
-        s = metrics["summary"]
-        print(f"{name}: {path}\n  held-out drawn machines: F21 error dig {s['dynamic_mape_pct_median']:.1f} % median, "
-              f"{s['dynamic_mape_pct_worst']:.1f} % worst; holds {s['static_mape_pct_median']:.1f} % / "
-              f"{s['static_mape_pct_worst']:.1f} %; 90 % interval coverage {s['interval_coverage_min']:.2f}–"
-              f"{s['interval_coverage_max']:.2f} ({s['interval_machines_85_95']} of {s['drawn_test_machines']} "
-              "machines in 0.85–0.95)")
+        print(f"{name}: {path}\n  held-out drawn machines: {summary_text(metrics['summary'])}")
         if "multi_source" in metrics:
-            m = metrics["multi_source"]
-            k, s = m["sources"], m["summary"]
-            print(f"  from {k} sources: dig {s['dynamic_mape_pct_median']:.1f} % median, "
-                  f"{s['dynamic_mape_pct_worst']:.1f} % worst; holds {s['static_mape_pct_median']:.1f} % / "
-                  f"{s['static_mape_pct_worst']:.1f} %; coverage {s['interval_coverage_min']:.2f}–"
-                  f"{s['interval_coverage_max']:.2f} ({s['interval_machines_85_95']} of "
-                  f"{s['drawn_test_machines']} in 0.85–0.95)")
+            print(f"  from {metrics['multi_source']['sources']} sources: "
+                  f"{summary_text(metrics['multi_source']['summary'])}")
     return 0
 
 
@@ -127,20 +118,12 @@ def run_build(args: argparse.Namespace) -> int:
     return 0
 
 
-def _multi_source_rows(metrics: dict[str, Any]) -> list[tuple[str, str]]:
-    """The held-out summary of a product-line card's multi-source calibration, as (field, text) rows (none without
-    one)."""
-    if "multi_source" not in metrics:
-        return []
-    m = metrics["multi_source"]
-    s = m["summary"]
-    return [(f"from {m['sources']} sources", f"scale_force_sources: {s['drawn_test_machines']} drawn: dig "
-                                             f"{s['dynamic_mape_pct_median']:.1f} % median, "
-                                             f"{s['dynamic_mape_pct_worst']:.1f} % worst; hold "
-                                             f"{s['static_mape_pct_median']:.1f} / {s['static_mape_pct_worst']:.1f} %; "
-                                             f"coverage {s['interval_coverage_min']:.2f}–"
-                                             f"{s['interval_coverage_max']:.2f} ({s['interval_machines_85_95']} in "
-                                             "0.85–0.95)")]
+def summary_text(s: Mapping[str, Any]) -> str:
+    """One line of a product-line card's held-out summary (``metrics["summary"]`` or its multi-source twin)."""
+    return (f"{s['drawn_test_machines']} drawn: dig {s['dynamic_mape_pct_median']:.1f} % median, "
+            f"{s['dynamic_mape_pct_worst']:.1f} % worst; hold {s['static_mape_pct_median']:.1f} / "
+            f"{s['static_mape_pct_worst']:.1f} %; 90 % coverage {s['interval_coverage_min']:.2f}–"
+            f"{s['interval_coverage_max']:.2f} ({s['interval_machines_85_95']} in 0.85–0.95)")
 
 
 def scaling_rows(card: dict[str, Any]) -> list[tuple[str, str]]:
@@ -160,12 +143,11 @@ def scaling_rows(card: dict[str, Any]) -> list[tuple[str, str]]:
                              f" %), coverage {v['interval_coverage']:.2f}"
                              for m, v in metrics["held_out_machines"].items())
         return [*common,
-                ("held_out machines", f"{s['drawn_test_machines']} drawn: dig {s['dynamic_mape_pct_median']:.1f} % "
-                                      f"median, {s['dynamic_mape_pct_worst']:.1f} % worst; hold "
-                                      f"{s['static_mape_pct_median']:.1f} / {s['static_mape_pct_worst']:.1f} %; "
-                                      f"coverage {s['interval_coverage_min']:.2f}–{s['interval_coverage_max']:.2f}"),
+                ("held_out machines", summary_text(s)),
                 ("per machine", machines),
-                *_multi_source_rows(metrics),
+                *([(f"from {metrics['multi_source']['sources']} sources",
+                    f"scale_force_sources: {summary_text(metrics['multi_source']['summary'])}")]
+                  if "multi_source" in metrics else []),
                 ("training", f"{len(training['machines'])} machines, calibration on "
                              f"{len(training['calibration_machines'])}, data {training['data_hash']}, seed "
                              f"{training['seed']}, code {training['code_version']}")]

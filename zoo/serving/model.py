@@ -72,6 +72,12 @@ def served_variables(output: PiGroup, inputs: Sequence[PiGroup], variable: str) 
     return source, target
 
 
+def _bounds(force: np.ndarray, half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(lower, upper) = force·e^(∓half) (SI); a width beyond floating point is reported as [0, inf]."""
+    with np.errstate(over="ignore"):
+        return force * np.exp(-half), force * np.exp(half)
+
+
 class ExtrapolationWarning(UserWarning):
     """The target's distortions lie outside the range the model was trained on: the prediction is extrapolated."""
 
@@ -372,15 +378,9 @@ class ScalingModel:
             half = interval.half_width(features, cov) * abs(self._inv_exp)
         except ValueError as exc:
             raise InputError(f"{self.name}: {exc}") from None
-        risk = score.score(features)
-        warned = score.above(risk)
-        if warned.any():
-            warnings.warn(f"{self.name}: {int(warned.sum())} of {len(warned)} target rows are likely more than "
-                          f"{score.miss:.0%} off from {k} sources (error score above its threshold, calibrated on "
-                          "held-out machines; ScaledForce.risk per row)", ExtrapolationWarning, stacklevel=2)
+        risk, warned = self._scored(score, features, f" from {k} sources", stacklevel=3)
         extrapolated = np.logical_or.reduce([o.extrapolated for o in outs])
-        with np.errstate(over="ignore"):  # a width beyond floating point is reported as [0, inf]
-            lo, hi = force * np.exp(-half), force * np.exp(half)
+        lo, hi = _bounds(force, half)
         return ScaledForce(self.variable, self.unit, force, lo, hi, delta, extrapolated, cov,
                            f"learned-scale, {k} sources", risk, warned)
 
@@ -414,22 +414,27 @@ class ScalingModel:
         if self.risk is not None and not isinstance(self.kernel, GRUKernel):  # its warnings replace the range's
             if risk:
                 features = self._risk_features(x, delta)
-                row_risk = self.risk.score.score(features)
                 if self._row_interval is not None:  # δ1·e^(±h) gives F21·e^(∓h/exponent)
-                    half = self._row_interval.half_width(features, spread[0]) * self._inv_exp
-                    with np.errstate(over="ignore"):  # a width beyond floating point is reported as [0, inf]
-                        lo, hi = force * np.exp(-half), force * np.exp(half)
+                    lo, hi = _bounds(force, self._row_interval.half_width(features, spread[0]) * self._inv_exp)
                     method = self.interval_method
-                warned = self.risk.score.above(row_risk)
-                if warned.any():
-                    warnings.warn(f"{self.name}: {int(warned.sum())} of {len(warned)} target rows are likely more "
-                                  f"than {self.risk.score.miss:.0%} off (error score above its threshold, calibrated "
-                                  "on held-out machines; ScaledForce.risk per row)", ExtrapolationWarning,
-                                  stacklevel=3)
+                row_risk, warned = self._scored(self.risk.score, features, "", stacklevel=4)
         elif outside.any():
             self._warn(g_out, int(outside.sum()), len(outside))
         return ScaledForce(self.variable, self.unit, force, lo, hi, delta, outside, spread[0], method, row_risk,
                            warned)
+
+    def _scored(self, score: ErrorScore, features: np.ndarray, context: str, stacklevel: int
+                ) -> tuple[np.ndarray, np.ndarray]:
+        """(risk, warned) of every row by ``score`` on its served ``features``, warning (ExtrapolationWarning, at
+        ``stacklevel`` counted from here) when any row is above the threshold; ``context`` is added to the message
+        after the miss (e.g. " from 3 sources")."""
+        risk = score.score(features)
+        warned = score.above(risk)
+        if warned.any():
+            warnings.warn(f"{self.name}: {int(warned.sum())} of {len(warned)} target rows are likely more than "
+                          f"{score.miss:.0%} off{context} (error score above its threshold, calibrated on held-out "
+                          "machines; ScaledForce.risk per row)", ExtrapolationWarning, stacklevel=stacklevel)
+        return risk, warned
 
     def _risk_features(self, x: np.ndarray, delta: np.ndarray) -> np.ndarray:
         """The served features of every row (:meth:`scaling.evaluation.conformal.RowRisk.features`): the novelty of its
