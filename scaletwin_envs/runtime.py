@@ -30,12 +30,12 @@ def qpos_for_pose(model: mujoco.MjModel, spec: LoaderSpec, pose: LinkagePose, dr
     return qpos
 
 
-def set_payload(model: mujoco.MjModel, data: mujoco.MjData, mass: float, com_local: np.ndarray,
+def set_payload(model: mujoco.MjModel, data: mujoco.MjData, mass: float, com_local: np.ndarray | tuple[float, float],
                 radius_of_gyration: float) -> None:
     """Write the load carried by the bucket into the ``payload`` body (kg, m relative to O) and refresh
     MuJoCo's derived constants. A floor of 1e-9 × bucket mass keeps the body well defined when empty."""
-    b = model.body("payload").id
-    floor = 1e-9 * float(model.body_mass[model.body("bucket").id])
+    b = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "payload")
+    floor = 1e-9 * float(model.body_mass[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "bucket")])
     m = max(mass, floor)
     model.body_mass[b] = m
     model.body_ipos[b] = xz_to_xyz(com_local)

@@ -60,21 +60,30 @@ class LoaderIds:
         )
 
 
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise cross product of (n, 3) arrays (np.cross is several times slower on small arrays)."""
-    return np.stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
-                     a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]], axis=1)
-
-
-def _xz(v: np.ndarray) -> np.ndarray:
-    return np.array([v[0], v[2]])
+def _point_motion(xipos: list[float], cvel: list[float], cacc: list[float], origin: list[float],
+                  gravity: list[float]) -> tuple[float, float, float, float, float, float]:
+    """One body's planar COM velocity (m/s) and kinematic acceleration (m/s²) in x and z, and its angular velocity
+    and acceleration about MuJoCo's y axis (rad/s, rad/s²; counter-clockwise in x–z is their negative), from its
+    rows of ``xipos``, ``cvel`` and ``cacc`` and the COM of its kinematic tree (``origin``, where MuJoCo takes its
+    com-based spatial vectors): vel = v + w × r, acc = dv + dw × r + w × vel + g (proper → kinematic), which is what
+    ``mj_objectAcceleration`` computes per body. Python floats: a dozen numpy calls on rows of three cost more."""
+    x, y, z = xipos
+    w0, w1, w2, c3, c4, c5 = cvel
+    dw0, dw1, dw2, a3, _, a5 = cacc
+    r0, r1, r2 = x - origin[0], y - origin[1], z - origin[2]
+    v0, v1, v2 = c3 + (w1 * r2 - w2 * r1), c4 + (w2 * r0 - w0 * r2), c5 + (w0 * r1 - w1 * r0)
+    ax = a3 + (dw1 * r2 - dw2 * r1) + (w1 * v2 - w2 * v1) + gravity[0]
+    az = a5 + (dw0 * r1 - dw1 * r0) + (w0 * v1 - w1 * v0) + gravity[2]
+    return v0, v2, ax, az, w1, dw1
 
 
 class SignalReader:
     """Computes the signals of one loader model; call after ``mj_forward`` + ``mj_rnePostConstraint``.
 
-    Kinematics of all linkage bodies are read in one vectorised pass from MuJoCo's com-based spatial
-    velocities and accelerations (``cvel``, ``cacc``), which is what ``mj_objectAcceleration`` does per body.
+    Both routes read MuJoCo's arrays through views bound once per ``MjData`` and work on Python floats (numpy's
+    per-call overhead on rows of three is larger than the arithmetic): route 1 needs the motion of the bucket and
+    the payload and a handful of MuJoCo's forces; route 2 the motion, mass and applied loads of every linkage body,
+    from which :class:`~scaletwin_envs.physics.newton_euler.LinkageSystem` solves the pin forces.
     """
 
     def __init__(self, model: mujoco.MjModel, bore_areas: dict[str, tuple[float, float]], weight: float) -> None:
@@ -82,18 +91,39 @@ class SignalReader:
         self.bore_areas = bore_areas  # cylinder -> (piston area, annulus area), m²
         self.force_scale = weight  # N: residuals are relative to the machine's weight
         self._cforce = np.zeros(6)
-        self._names = (*LINKAGE_BODIES, "payload")
-        self._kb, self._kp = self._names.index("bucket"), len(self._names) - 1  # rows of the bucket and the payload
-        self._bid = np.array([self.ids.bodies[n] for n in self._names])
+        names = (*LINKAGE_BODIES, "payload")
+        self._kb, self._kp = names.index("bucket"), len(names) - 1  # rows of the bucket and the payload
+        self._bid = np.array([self.ids.bodies[n] for n in names])
+        self._bucket, self._payload = self.ids.bodies["bucket"], self.ids.bodies["payload"]
         self._root = int(model.body_rootid[self.ids.bodies["bucket"]])
         self._sid = np.array([self.ids.sites[n] for n in PIN_SITES])
-        self._pin_sites = np.array([PIN_SITES.index(p) for *_, p in LINKAGE_PINS])
-        self._cyl_sites = np.array([[PIN_SITES.index(a), PIN_SITES.index(b)] for _, a, b in CYLINDERS])
+        self._pin_O = self.ids.sites["pin_O"]
+        self._pin_sites = tuple(PIN_SITES.index(p) for *_, p in LINKAGE_PINS)
+        self._cyl_sites = tuple((PIN_SITES.index(a), PIN_SITES.index(b)) for _, a, b in CYLINDERS)
         self.system = LinkageSystem(LINKAGE_BODIES, [(n, p, c) for n, p, c, _ in LINKAGE_PINS],
                                     [(n, f"{n}_barrel", f"{n}_rod") for n, *_ in CYLINDERS])
+        pins = [n for n, *_ in LINKAGE_PINS]
+        self._x21, self._xO = 2 * pins.index("pin_21"), 2 * pins.index("O")  # their x components in the solution
+        self._x_axial = {c: 2 * len(pins) + 3 * k for k, (c, *_) in enumerate(CYLINDERS)}
         self._slide_dof = {k: int(model.jnt_dofadr[self.ids.joints[f"{k}_cylinder"]]) for k in ("lift", "tilt")}
         self._gravity = -float(model.opt.gravity[2])
         self._bucket_tendons = self._tendons_on(self.ids.bodies["bucket"])
+        self._act = {k: self.ids.actuators[k] for k in ("lift", "tilt")}
+        self._boom_qpos = int(model.jnt_qposadr[self.ids.joints["boom_hinge"]])
+        self._drive_dof = int(model.jnt_dofadr[self.ids.joints["drive"]])
+        self._f21_row = 0  # first constraint row of link_b_to_bucket at the last read (checked before use)
+        self._data: mujoco.MjData | None = None
+
+    def _bind(self, data: mujoco.MjData) -> None:
+        """Keep views of the ``data`` arrays read every step (their memory lives as long as ``data``; the
+        constraint arrays ``efc_*`` are re-allocated every step and are never kept)."""
+        if data is self._data:
+            return
+        self._data = data
+        self._xipos, self._cvel, self._cacc, self._subtree_com = data.xipos, data.cvel, data.cacc, data.subtree_com
+        self._xmat, self._ximat, self._site_xpos, self._cfrc_int = data.xmat, data.ximat, data.site_xpos, data.cfrc_int
+        self._actuator_force, self._xfrc = data.actuator_force, data.xfrc_applied
+        self._qpos, self._qvel, self._qacc = data.qpos, data.qvel, data.qacc
 
     def _tendons_on(self, body: int) -> list[tuple[int, int, int]]:
         """Two-site spatial tendons starting on ``body``: (tendon, site on body, other site)."""
@@ -106,50 +136,35 @@ class SignalReader:
                     out.append((t, a, b))
         return out
 
-    def _tendon_loads(self, data: mujoco.MjData) -> list[tuple[np.ndarray, np.ndarray]]:
-        """Passive tendon forces (damping) on the bucket, as (point, force) in x–z."""
+    def _tendon_loads(self, data: mujoco.MjData) -> list[tuple[float, float, float, float]]:
+        """Passive tendon forces on the bucket (the soil dampers; their springs are off), as (x, z, f_x, f_z) in
+        m and N: damping × lengthening speed along the tendon, towards its other end."""
         loads = []
-        xpos, m = data.site_xpos, self.model
+        xpos, damping, velocity = data.site_xpos, self.model.tendon_damping, data.ten_velocity
         for t, a, b in self._bucket_tendons:
-            u = xpos[b] - xpos[a]
-            u = u / math.sqrt(u.dot(u))  # np.linalg.norm of a vector, without its call overhead
-            f = m.tendon_damping[t] * data.ten_velocity[t] - m.tendon_stiffness[t] * (
-                data.ten_length[t] - m.tendon_lengthspring[t, 0]) * 0.0
-            loads.append((_xz(xpos[a]), f * _xz(u)))
+            ax, ay, az = xpos[a].tolist()
+            bx, by, bz = xpos[b].tolist()
+            ux, uy, uz = bx - ax, by - ay, bz - az
+            norm = math.sqrt(ux * ux + uy * uy + uz * uz)
+            f = float(damping[t] * velocity[t])
+            loads.append((ax, az, f * (ux / norm), f * (uz / norm)))
         return loads
 
-    def _kinematics(self, data: mujoco.MjData) -> dict[str, np.ndarray]:
-        """Planar COM position, velocity, kinematic acceleration, angular velocity/acceleration (CCW) per body."""
-        # Each MjData/MjModel attribute access and fancy index costs about a microsecond: read each array once, and
-        # form only the x and z components of the acceleration (same operations, in the same order, as the full
-        # 3-vector expression acc = dv + dw × r + w × vel + g, so the values are bit for bit those of that form).
-        b, model = self._bid, self.model
-        xipos, cvel, cacc = data.xipos[b], data.cvel[b], data.cacc[b]
-        r = xipos - data.subtree_com[self._root]
-        w = cvel[:, :3]
-        vel = cvel[:, 3:] + _cross(w, r)
-        w0, w1, w2, dw0, dw1, dw2 = w[:, 0], w[:, 1], w[:, 2], cacc[:, 0], cacc[:, 1], cacc[:, 2]
-        r0, r1, r2, v0, v1, v2 = r[:, 0], r[:, 1], r[:, 2], vel[:, 0], vel[:, 1], vel[:, 2]
-        g = model.opt.gravity
-        acc = np.empty((len(b), 2))
-        acc[:, 0] = cacc[:, 3] + (dw1 * r2 - dw2 * r1) + (w1 * v2 - w2 * v1) + g[0]  # proper → kinematic
-        acc[:, 1] = cacc[:, 5] + (dw0 * r1 - dw1 * r0) + (w0 * v1 - w1 * v0) + g[2]
-        rot_y = data.ximat[b][:, 3:6]  # row y of each body's inertial frame
-        inertia = (rot_y**2 * model.body_inertia[b]).sum(axis=1)
-        xfrc = data.xfrc_applied[b]
-        return {"com": xipos[:, [0, 2]], "vel": vel[:, [0, 2]], "acc": acc, "omega": -w1, "alpha": -dw1,
-                "mass": model.body_mass[b], "inertia": inertia, "force": xfrc[:, [0, 2]], "moment": -xfrc[:, 4]}
-
-    def _bucket_contacts(self, data: mujoco.MjData) -> list[tuple[np.ndarray, np.ndarray]]:
-        loads = []
-        for k in range(data.ncon):
-            c = data.contact[k]
-            on_g1 = int(c.geom1) in self.ids.bucket_geoms
-            if not (on_g1 or int(c.geom2) in self.ids.bucket_geoms):
+    def _bucket_contacts(self, data: mujoco.MjData) -> list[tuple[float, float, float, float]]:
+        """Contact forces on the bucket, as (x, z, f_x, f_z) in m and N."""
+        loads: list[tuple[float, float, float, float]] = []
+        if data.ncon == 0:
+            return loads
+        contact, bucket = data.contact, self.ids.bucket_geoms
+        for k, (g1, g2) in enumerate(contact.geom.tolist()):
+            on_g1 = g1 in bucket
+            if not (on_g1 or g2 in bucket):
                 continue
             mujoco.mj_contactForce(self.model, data, k, self._cforce)
-            world = c.frame.reshape(3, 3).T @ self._cforce[:3]  # force of geom1 on geom2
-            loads.append((_xz(c.pos), _xz(-world if on_g1 else world)))
+            world = contact.frame[k].reshape(3, 3).T @ self._cforce[:3]  # force of geom1 on geom2
+            sign = -1.0 if on_g1 else 1.0
+            px, _, pz = contact.pos[k].tolist()
+            loads.append((px, pz, sign * float(world[0]), sign * float(world[2])))
         return loads
 
     # -- signals ----------------------------------------------------------------------------------------
@@ -157,93 +172,121 @@ class SignalReader:
         """All signals at the current (forwarded) state; ``soil_force`` (N, x–z) is reported as ``R_x``/``R_z``.
 
         Applied loads enter route 2 through ``data.xfrc_applied``, contacts through MuJoCo's contact list."""
-        ids, m = self.ids, self.model
-        k = self._kinematics(data)
-        kb, kp = self._kb, self._kp
-        mb, mp = k["mass"][kb], k["mass"][kp]
+        self._bind(data)
+        b, p = self._bucket, self._payload
+        xipos, cvel, cacc = self._xipos, self._cvel, self._cacc
+        origin, g = self._subtree_com[self._root].tolist(), self.model.opt.gravity.tolist()
+        (cbx, cby, cbz), (cpx, cpy, cpz) = xipos[b].tolist(), xipos[p].tolist()
+        vbx, vbz, abx, abz, wb, dwb = _point_motion([cbx, cby, cbz], cvel[b].tolist(), cacc[b].tolist(), origin, g)
+        vpx, vpz, apx, apz, _, _ = _point_motion([cpx, cpy, cpz], cvel[p].tolist(), cacc[p].tolist(), origin, g)
+        mass = self.model.body_mass
+        mb, mp = float(mass[b]), float(mass[p])
         m_b = mb + mp
-        com = (mb * k["com"][kb] + mp * k["com"][kp]) / m_b
-        acc = (mb * k["acc"][kb] + mp * k["acc"][kp]) / m_b
-        vel = (mb * k["vel"][kb] + mp * k["vel"][kp]) / m_b
-        rot = data.xmat[ids.bodies["bucket"]].reshape(3, 3)
-        pitch = math.atan2(rot[2, 0], rot[0, 0])
-        r = com - _xz(data.site_xpos[ids.sites["pin_O"]])
+        com = ((mb * cbx + mp * cpx) / m_b, (mb * cbz + mp * cpz) / m_b)
+        acc = ((mb * abx + mp * apx) / m_b, (mb * abz + mp * apz) / m_b)
+        vel = ((mb * vbx + mp * vpx) / m_b, (mb * vbz + mp * vpz) / m_b)
+        rot = self._xmat[b]
+        pitch = math.atan2(rot[6], rot[0])  # rotation matrix entries (2, 0) and (0, 0)
+        ox, _, oz = self._site_xpos[self._pin_O].tolist()
+        rx, rz = com[0] - ox, com[1] - oz
         c, s = math.cos(pitch), math.sin(pitch)
         f21 = self._connect_force(data)
-        f31 = _xz(data.cfrc_int[ids.bodies["bucket"]][3:])
-        actuator = {c_: float(data.actuator_force[ids.actuators[c_]]) for c_ in ("lift", "tilt")}
-        pf = {c_: actuator[c_] - self._armature_force(data, c_) for c_ in ("lift", "tilt")}  # force on the piston
+        _, _, _, f31x, _, f31z = self._cfrc_int[b].tolist()
+        force = self._actuator_force
+        actuator = {k: float(force[a]) for k, a in self._act.items()}
+        pf = {k: actuator[k] - self._armature_force(data, k) for k in ("lift", "tilt")}  # force on the piston
+        # the four magnitudes by one np.hypot call: the values np.hypot gives each (math.hypot may differ in the
+        # last bit)
+        f21_mag, f31_mag, a1, v1 = np.hypot((f21[0], f31x, acc[0], vel[0]), (f21[1], f31z, acc[1], vel[1])).tolist()
         out = {
-            "F21": float(np.hypot(*f21)), "F31": float(np.hypot(*f31)), "Pf_tilt": pf["tilt"], "Pf_lift": pf["lift"],
-            "x_b": c * r[0] + s * r[1], "y_b": -s * r[0] + c * r[1], "m_b": float(m_b),
-            "a1": float(np.hypot(*acc)), "alpha1": abs(float(k["alpha"][kb])), "V1": float(np.hypot(*vel)),
-            "w1": abs(float(k["omega"][kb])), "F21_x": f21[0], "F21_z": f21[1], "F31_x": f31[0], "F31_z": f31[1],
+            "F21": f21_mag, "F31": f31_mag, "Pf_tilt": pf["tilt"], "Pf_lift": pf["lift"],
+            "x_b": c * rx + s * rz, "y_b": -s * rx + c * rz, "m_b": m_b, "a1": a1, "alpha1": abs(dwb), "V1": v1,
+            "w1": abs(wb), "F21_x": f21[0], "F21_z": f21[1], "F31_x": f31x, "F31_z": f31z,
             "R_x": float(soil_force[0]), "R_z": float(soil_force[1]), "bucket_pitch": pitch,
-            "boom_angle": float(data.qpos[m.jnt_qposadr[ids.joints["boom_hinge"]]]),
-            "travel_speed": float(data.qvel[m.jnt_dofadr[ids.joints["drive"]]]),
+            "boom_angle": float(self._qpos[self._boom_qpos]), "travel_speed": float(self._qvel[self._drive_dof]),
         }
         for name in ("lift", "tilt"):
             piston, annulus = self.bore_areas[name]
             out[f"p_{name}"] = pf[name] / piston if pf[name] >= 0 else -pf[name] / annulus
         if two_routes:
-            out.update(self._route2(data, k, f21, f31, actuator))
+            out.update(self._route2(data, origin, g, f21, (f31x, f31z), actuator))
         return out
 
-    def _connect_force(self, data: mujoco.MjData) -> np.ndarray:
-        ne = int(data.ne)  # MuJoCo orders constraint rows equality first: the first ne rows
-        rows = np.nonzero(data.efc_id[:ne] == self.ids.eq_f21)[0]
-        if rows.size != 3:
-            return np.zeros(2)
+    def _connect_force(self, data: mujoco.MjData) -> tuple[float, float]:
+        """x and z of the ``link_b_to_bucket`` connect constraint's force (N): its three rows among the equality
+        rows, which MuJoCo puts first (the first ``ne``); zero when the constraint is not active."""
+        ne, eq, row = int(data.ne), self.ids.eq_f21, self._f21_row
+        efc_id = data.efc_id
+        if not (row + 2 < ne and efc_id[row] == eq and efc_id[row + 2] == eq):  # not where it was last time
+            rows = np.nonzero(efc_id[:ne] == eq)[0]
+            if rows.size != 3:
+                return 0.0, 0.0
+            row = self._f21_row = int(rows[0])
         force = data.efc_force
-        return np.array([force[rows[0]], force[rows[2]]])
+        return float(force[row]), float(force[row + 2])
 
-    def _route2(self, data: mujoco.MjData, k: dict[str, np.ndarray], f21: np.ndarray, f31: np.ndarray,
-                actuator: dict[str, float]) -> dict[str, float]:
-        kb, kp = self._kb, self._kp
-        n = kp  # linkage bodies only; the payload is merged into the bucket
-        mass, com, inertia = k["mass"][:n].copy(), k["com"][:n].copy(), k["inertia"][:n].copy()
-        acc, force, moment = k["acc"][:n].copy(), k["force"][:n].copy(), k["moment"][:n].copy()
+    def _bodies(self, origin: list[float], gravity: list[float]) -> list[tuple[float, ...]]:
+        """Per linkage body and the payload (rows as ``LINKAGE_BODIES`` + payload): mass (kg), COM x, z (m), kinematic
+        acceleration x, z (m/s²), angular acceleration (rad/s², CCW), inertia about the COM's y axis (kg·m²),
+        applied force x, z (N) and moment (N·m, CCW) of ``xfrc_applied``."""
+        b, model = self._bid, self.model
+        rows = zip(self._xipos.take(b, 0).tolist(), self._cvel.take(b, 0).tolist(), self._cacc.take(b, 0).tolist(),
+                   self._ximat.take(b, 0).tolist(), model.body_inertia.take(b, 0).tolist(),
+                   model.body_mass.take(b).tolist(), self._xfrc.take(b, 0).tolist(), strict=True)
+        out = []
+        for xi, cv, ca, rot, (i0, i1, i2), m, f in rows:
+            _, _, ax, az, _, dw1 = _point_motion(xi, cv, ca, origin, gravity)
+            inertia = rot[3] * rot[3] * i0 + rot[4] * rot[4] * i1 + rot[5] * rot[5] * i2  # row y of the inertial frame
+            out.append((m, xi[0], xi[2], ax, az, -dw1, inertia, f[0], f[2], -f[4]))
+        return out
+
+    def _route2(self, data: mujoco.MjData, origin: list[float], gravity: list[float], f21: tuple[float, float],
+                f31: tuple[float, float], actuator: dict[str, float]) -> dict[str, float]:
+        bodies = self._bodies(origin, gravity)
         # Merge the payload rigidly into the bucket (parallel-axis theorem) and add the bucket's contact and tendon
-        # loads. Done on Python floats: the same operations, in the same order, as on the 2-vectors (so bit for bit
-        # the same values), at a fraction of the cost of numpy calls on arrays of two.
-        mb, mp = float(mass[kb]), float(k["mass"][kp])
-        (cbx, cbz), (cpx, cpz) = com[kb].tolist(), k["com"][kp].tolist()
-        (abx, abz), (apx, apz) = acc[kb].tolist(), k["acc"][kp].tolist()
-        (fbx, fbz), (fpx, fpz) = force[kb].tolist(), k["force"][kp].tolist()
+        # loads (applied at points: their moment about the merged COM)
+        mb, cbx, cbz, abx, abz, alpha, ib, fbx, fbz, moment_b = bodies[self._kb]
+        mp, cpx, cpz, apx, apz, _, ip, fpx, fpz, moment_p = bodies.pop(self._kp)
         total = mb + mp
         cx, cz = (mb * cbx + mp * cpx) / total, (mb * cbz + mp * cpz) / total
         dbx, dbz, dpx, dpz = cbx - cx, cbz - cz, cpx - cx, cpz - cz
-        inertia[kb] = float(inertia[kb]) + (
-            mb * (dbx * dbx + dbz * dbz) + float(k["inertia"][kp]) + mp * (dpx * dpx + dpz * dpz))
-        acc[kb] = ((mb * abx + mp * apx) / total, (mb * abz + mp * apz) / total)
-        turn = float(moment[kb]) + ((dpx * fpz - dpz * fpx) + float(k["moment"][kp]) + (dbx * fbz - dbz * fbx))
+        inertia = ib + (mb * (dbx * dbx + dbz * dbz) + ip + mp * (dpx * dpx + dpz * dpz))
+        turn = moment_b + ((dpx * fpz - dpz * fpx) + moment_p + (dbx * fbz - dbz * fbx))
         fx, fz = fbx + fpx, fbz + fpz
-        for point, f in (*self._bucket_contacts(data), *self._tendon_loads(data)):
-            (px, pz), (lx, lz) = point.tolist(), f.tolist()
+        for px, pz, lx, lz in (*self._bucket_contacts(data), *self._tendon_loads(data)):
             fx, fz = fx + lx, fz + lz
             turn += (px - cx) * lz - (pz - cz) * lx
-        mass[kb], com[kb], force[kb], moment[kb] = total, (cx, cz), (fx, fz), turn
-        pts = data.site_xpos[self._sid][:, [0, 2]]
-        starts, ends = pts[self._cyl_sites[:, 0]], pts[self._cyl_sites[:, 1]]
-        axes = (ends - starts) / np.linalg.norm(ends - starts, axis=1, keepdims=True)
-        sol = self.system.solve(mass, com, inertia, acc, k["alpha"][:n], force, moment, pts[self._pin_sites],
-                                0.5 * (starts + ends), axes, self._gravity)
-        r21, r31 = sol.pins["pin_21"], sol.pins["O"]
+        bodies[self._kb] = (total, cx, cz, (mb * abx + mp * apx) / total, (mb * abz + mp * apz) / total, alpha,
+                            inertia, fx, fz, turn)
+        pts = [(x, z) for x, _, z in self._site_xpos.take(self._sid, 0).tolist()]
+        slide_points, slide_axes = [], []
+        for a, e in self._cyl_sites:  # cylinder axis from its frame pin to its rod-end pin
+            (sx, sz), (ex, ez) = pts[a], pts[e]
+            dx, dz = ex - sx, ez - sz
+            length = math.sqrt(dx * dx + dz * dz)
+            slide_points.append((0.5 * (sx + ex), 0.5 * (sz + ez)))
+            slide_axes.append((dx / length, dz / length))
+        x = self.system.solve_floats(bodies, [pts[k] for k in self._pin_sites], slide_points, slide_axes,
+                                     self._gravity)
+        i21, iO = self._x21, self._xO
+        r21, r31 = (x[i21], x[i21 + 1]), (x[iO], x[iO + 1])
+        lift, tilt = x[self._x_axial["lift"]], x[self._x_axial["tilt"]]
         axial = {c_: actuator[c_] + self._limit_force(data, c_) - self._armature_force(data, c_)
                  for c_ in ("lift", "tilt")}
         w = self.force_scale
+        f21_r2, f31_r2, d21, d31 = np.hypot((r21[0], r31[0], r21[0] - f21[0], r31[0] - f31[0]),
+                                            (r21[1], r31[1], r21[1] - f21[1], r31[1] - f31[1])).tolist()
         return {
-            "F21_route2": float(np.hypot(*r21)), "F31_route2": float(np.hypot(*r31)),
-            "Pf_lift_route2": sol.axial["lift"], "Pf_tilt_route2": sol.axial["tilt"],
-            "residual_F21": float(np.hypot(*(r21 - f21))) / w, "residual_F31": float(np.hypot(*(r31 - f31))) / w,
-            "residual_Pf_lift": abs(sol.axial["lift"] - axial["lift"]) / w,
-            "residual_Pf_tilt": abs(sol.axial["tilt"] - axial["tilt"]) / w,
+            "F21_route2": f21_r2, "F31_route2": f31_r2, "Pf_lift_route2": lift, "Pf_tilt_route2": tilt,
+            "residual_F21": d21 / w, "residual_F31": d31 / w,
+            "residual_Pf_lift": abs(lift - axial["lift"]) / w, "residual_Pf_tilt": abs(tilt - axial["tilt"]) / w,
         }
 
     def _armature_force(self, data: mujoco.MjData, cylinder: str) -> float:
         """Slide forces MuJoCo applies in joint space only: armature inertia and viscous damping (N)."""
         dof = self._slide_dof[cylinder]
-        return float(self.model.dof_armature[dof] * data.qacc[dof] + self.model.dof_damping[dof] * data.qvel[dof])
+        m = self.model
+        return float(m.dof_armature[dof] * data.qacc[dof] + m.dof_damping[dof] * data.qvel[dof])
 
     def _limit_force(self, data: mujoco.MjData, cylinder: str) -> float:
         j = self.ids.joints[f"{cylinder}_cylinder"]

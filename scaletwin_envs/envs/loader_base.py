@@ -166,19 +166,19 @@ class LoaderEnv(MujocoEnv):
         a = np.asarray(action, dtype=np.float64)
         if a.shape != (3,):
             raise ValueError(f"action must have shape (3,) = [lift, tilt, drive] in [-1, 1], got shape {a.shape}")
-        if not np.all(np.isfinite(a)):
-            raise ValueError(f"action must be finite, got {a.tolist()}")
-        clipped = np.clip(a, -1.0, 1.0)
-        self.action_clipped = bool(np.any(clipped != a))
-        return clipped
+        values = a.tolist()  # three Python floats: cheaper to check and clip than numpy calls on three elements
+        if not all(map(math.isfinite, values)):
+            raise ValueError(f"action must be finite, got {values}")
+        clipped = [min(max(v, -1.0), 1.0) for v in values]
+        self.action_clipped = clipped != values
+        return np.array(clipped)
 
     def _command_to_ctrl(self, a: np.ndarray) -> np.ndarray:
-        ctrl = np.zeros(3)
+        lift, tilt, drive = a.tolist()
         qpos = self.data.qpos
-        for i, k in enumerate(("lift", "tilt")):
-            ctrl[i] = self.valves[k].speed(float(a[i]), float(qpos[self._slide_adr[k][0]]))
-        ctrl[2] = float(a[2]) * self.loader.travel_speed
-        return ctrl
+        return np.array((self.valves["lift"].speed(lift, float(qpos[self._slide_adr["lift"][0]])),
+                         self.valves["tilt"].speed(tilt, float(qpos[self._slide_adr["tilt"][0]])),
+                         drive * self.loader.travel_speed))
 
     # -- stepping ----------------------------------------------------------------------------------------
     def _simulate(self, ctrl: np.ndarray) -> str | None:
@@ -190,7 +190,7 @@ class LoaderEnv(MujocoEnv):
             mujoco.mj_step(self.model, self.data, nstep=self.external_force_substeps)
         if self._bad_state_warnings() > warnings_before:  # MuJoCo resets a diverged state silently; don't hide it
             return "MuJoCo reported a non-finite or huge state (physics diverged)"
-        if not (np.all(np.isfinite(self.data.qpos)) and np.all(np.isfinite(self.data.qvel))):
+        if not (all(map(math.isfinite, self.data.qpos.tolist())) and all(map(math.isfinite, self.data.qvel.tolist()))):
             return "non-finite state (physics diverged)"
         self._after_physics()
         mujoco.mj_forward(self.model, self.data)
@@ -201,8 +201,8 @@ class LoaderEnv(MujocoEnv):
         return self.signal_reader.read(self.data, soil_force, two_routes=self.two_route_check)
 
     def _bad_state_warnings(self) -> int:
-        w = self.data.warning
-        return sum(int(w[k].number) for k in self._warnings)
+        number = self.data.warning.number.tolist()
+        return sum(number[k] for k in self._warnings)
 
     def actuator_force(self, which: str) -> float:
         """The valve's force on ``"lift"`` or ``"tilt"`` (N) at the last physics step: the servo's output, which

@@ -54,7 +54,7 @@ from gymnasium import spaces
 from scaletwin_envs.builder import BuildOptions
 from scaletwin_envs.envs.loader_base import DEFAULT_EXTERNAL_FORCE_SUBSTEPS, DEFAULT_FRAME_SKIP, LoaderEnv
 from scaletwin_envs.envs.phases import DigPhase, classify
-from scaletwin_envs.physics.bucket import load_centroid
+from scaletwin_envs.physics.bucket import centroid_at, centroid_ends
 from scaletwin_envs.physics.dig import DigForces, DigModel
 from scaletwin_envs.physics.kinematics import LinkageUnreachable, solve_pose
 from scaletwin_envs.physics.pile import Pile
@@ -170,8 +170,14 @@ class WheelLoaderDigEnv(LoaderEnv):
         self._site_xpos, self._xipos, self._xfrc = self.data.site_xpos, self.data.xipos, self.data.xfrc_applied
         self._tendon_damping = self.model.tendon_damping
         self._dampers = np.array([self.model.tendon(n).id for n in ("soil_damper_x", "soil_damper_z")])
+        self._damper_ids = tuple(int(t) for t in self._dampers)
         self._anchors = (self.model.site("soil_anchor_x").id, self.model.site("soil_anchor_z").id)
+        self._ten_velocity, self._qpos, self._qvel = self.data.ten_velocity, self.data.qpos, self.data.qvel
+        # (max extend force N, stroke m, extend speed m/s) of the lift and tilt cylinders, for the observation
+        self._obs_cylinders = tuple((c.max_extend_force, c.stroke, c.extend_speed)
+                                    for c in (self.loader.lift, self.loader.tilt))
         self._vel6 = np.zeros(6)
+        self._centroid_ends = centroid_ends(self.loader.geometry)  # load centroid, empty and heaped (m, reference pose)
         self.pile: Pile
         self.dig: DigModel
         self._last_obs = np.zeros(len(OBS_NAMES), dtype=np.float32)
@@ -239,12 +245,14 @@ class WheelLoaderDigEnv(LoaderEnv):
     def _apply_external_forces(self) -> None:
         """Refresh the soil resistance: the tendon dampers take the part along travel, ``xfrc_applied`` the press."""
         # plain floats (the same values as the float64 array elements) keep the scalar arithmetic below fast
-        edge, top, heel = self._site_xpos[self._site_rows].tolist()
+        edge, top, heel = self._site_xpos.take(self._site_rows, 0).tolist()
         mujoco.mj_objectVelocity(self.model, self.data, mujoco.mjtObj.mjOBJ_SITE, self._site_ids[0], self._vel6, 0)
-        vx, vz = float(self._vel6[3]), float(self._vel6[5])
+        _, _, _, vx, _, vz = self._vel6.tolist()
         f = self.dig.resistance((edge[0], edge[2]), (top[0], top[2]), (heel[0], heel[2]), (vx, vz))
         speed = math.hypot(vx, vz)
-        self._tendon_damping[self._dampers] = f.resist / max(speed, self.dig.creep)
+        damping = f.resist / max(speed, self.dig.creep)
+        for t in self._damper_ids:
+            self._tendon_damping[t] = damping
         scale = min(1.0, speed / self.dig.creep)
         fx, fz = scale * f.press * f.travel[1], -scale * f.press * f.travel[0]
         com_x, _, com_z = self._xipos[self._bucket].tolist()
@@ -254,17 +262,20 @@ class WheelLoaderDigEnv(LoaderEnv):
 
     def soil_force(self) -> np.ndarray:
         """Soil force on the bucket now (N, x–z): tendon dampers plus the press."""
-        edge = self.data.site_xpos[self._site_ids[0]]
-        total = self.data.xfrc_applied[self._bucket][[0, 2]].copy()
-        damping, velocity, xpos = self.model.tendon_damping, self.data.ten_velocity, self.data.site_xpos
-        for t, anchor in zip(self._dampers, self._anchors, strict=True):
-            u = xpos[anchor] - edge
-            u = u / math.sqrt(u.dot(u))  # np.linalg.norm of a vector, without its call overhead
-            total += damping[t] * velocity[t] * u[[0, 2]]
-        return total
+        xpos = self._site_xpos
+        ex, ey, ez = xpos[self._site_ids[0]].tolist()
+        fx, _, fz = self._xfrc[self._bucket, :3].tolist()
+        damping, velocity = self._tendon_damping, self._ten_velocity
+        for t, anchor in zip(self._damper_ids, self._anchors, strict=True):
+            ax, ay, az = xpos[anchor].tolist()
+            ux, uy, uz = ax - ex, ay - ey, az - ez
+            norm = math.sqrt(ux * ux + uy * uy + uz * uz)  # Python floats: numpy calls on 3-vectors cost more
+            f = float(damping[t] * velocity[t])
+            fx, fz = fx + f * (ux / norm), fz + f * (uz / norm)
+        return np.array((fx, fz))
 
     def _after_physics(self) -> None:
-        cavity = self.data.site_xpos[self._cavity_ids][:, [0, 2]]
+        cavity = self._site_xpos.take(self._cavity_ids, 0)[:, ::2]  # heel, edge, top of back wall: x, z
         self.dig.transfer(cavity, self._bucket_pitch())
         self._update_payload()
 
@@ -276,10 +287,8 @@ class WheelLoaderDigEnv(LoaderEnv):
         if self.dig.load_volume == self._payload_volume:
             return
         self._payload_volume = self.dig.load_volume
-        g = self.loader.geometry
-        fill = self.dig.fill()
-        com = load_centroid(g, fill) - np.asarray(g.pin_O)
-        set_payload(self.model, self.data, self.dig.load_mass, com, 0.15 * self.length)
+        (x, z), (ox, oz) = centroid_at(self._centroid_ends, self.dig.fill()), self.loader.geometry.pin_O
+        set_payload(self.model, self.data, self.dig.load_mass, (x - ox, z - oz), 0.15 * self.length)
 
     # -- step --------------------------------------------------------------------------------------------
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
@@ -297,7 +306,7 @@ class WheelLoaderDigEnv(LoaderEnv):
         self.signals = sig
         power = sum(max(sig[f"Pf_{k}"] * self.cylinder_state(k)[1], 0.0) for k in ("lift", "tilt"))
         self._work += power * self.dt
-        self._max_x = max(self._max_x, float(self.data.qpos[0]))
+        self._max_x = max(self._max_x, float(self._qpos[0]))
         terms = self._reward_terms(before, power)
         reward = float(sum(terms.values()))
         self._reward_total += reward
@@ -321,19 +330,20 @@ class WheelLoaderDigEnv(LoaderEnv):
             "spill": -w["spill"] * (spill - before["spill"]),
         }
 
-    def _edge_state(self) -> tuple[np.ndarray, float]:
-        edge = self._site_xz("bucket_edge")
-        return edge, self.pile.surface(edge[0] + 0.5 * self.pile.dx) - edge[1]
+    def _edge_state(self) -> tuple[tuple[float, float], float]:
+        """Cutting edge (x, z) and its depth below the pile surface, m."""
+        x, _, z = self._site_xpos[self._site_ids[0]].tolist()
+        return (x, z), self.pile.surface(x + 0.5 * self.pile.dx) - z
 
     def _cycle_complete(self) -> bool:
         _, depth = self._edge_state()
         clear = depth < -0.05 * self.length and self.signals["bucket_pitch"] > 0.2
-        pulled_back = self._max_x - float(self.data.qpos[0]) > 0.3 * self.length
+        pulled_back = self._max_x - float(self._qpos[0]) > 0.3 * self.length
         return bool(clear and pulled_back and self.dig.load_volume > 0.0)
 
     def phase(self) -> DigPhase:
         _, depth = self._edge_state()
-        qvel = self.data.qvel
+        qvel = self._qvel
         curl = float(qvel[self._curl_dofs[0]] + qvel[self._curl_dofs[1]])
         loaded = self.dig.fill() > 0.02
         return classify(depth > 0.0, curl, self.signals["travel_speed"], loaded, self.length)
@@ -377,20 +387,20 @@ class WheelLoaderDigEnv(LoaderEnv):
         edge, depth = self._edge_state()
         lift_ext, lift_v = self.cylinder_state("lift")
         tilt_ext, tilt_v = self.cylinder_state("tilt")
-        lift, tilt = self.loader.lift, self.loader.tilt
-        values = (
-            sig["boom_angle"], sig["bucket_pitch"], lift_ext / lift.stroke, tilt_ext / tilt.stroke,
-            lift_v / lift.extend_speed, tilt_v / tilt.extend_speed, sig["travel_speed"] / self.speed_scale,
-            (edge[0] - self.pile.x[0]) / L, edge[1] / L, depth / L,
+        (lift_force, lift_stroke, lift_speed), (tilt_force, tilt_stroke, tilt_speed) = self._obs_cylinders
+        values = [
+            sig["boom_angle"], sig["bucket_pitch"], lift_ext / lift_stroke, tilt_ext / tilt_stroke,
+            lift_v / lift_speed, tilt_v / tilt_speed, sig["travel_speed"] / self.speed_scale,
+            (edge[0] - float(self.pile.x[0])) / L, edge[1] / L, depth / L,
             self.pile.surface(edge[0] + 0.25 * L) / L, self.pile.surface(edge[0] + 0.5 * L) / L, self.dig.fill(),
-            self.actuator_force("lift") / lift.max_extend_force, self.actuator_force("tilt") / tilt.max_extend_force,
+            self.actuator_force("lift") / lift_force, self.actuator_force("tilt") / tilt_force,
             math.hypot(sig["R_x"], sig["R_z"]) / self.loader.weight,
             self._t / (self.max_episode_time * self.loader.froude_time),
-            self.dig.spilled_volume / self.dig.capacity, (float(self.data.qpos[0]) - self._start_x) / L,
-        )
-        obs = np.asarray(values, dtype=np.float64)
-        if not np.isfinite(obs).all():
-            obs = np.nan_to_num(obs, nan=0.0, posinf=OBS_LIMIT, neginf=-OBS_LIMIT)
+            self.dig.spilled_volume / self.dig.capacity, (float(self._qpos[0]) - self._start_x) / L,
+        ]
+        if all(map(math.isfinite, values)):  # the usual case: clip as Python floats, one conversion to float32
+            return np.array([min(max(v, -OBS_LIMIT), OBS_LIMIT) for v in values], dtype=np.float32)
+        obs = np.nan_to_num(np.asarray(values, dtype=np.float64), nan=0.0, posinf=OBS_LIMIT, neginf=-OBS_LIMIT)
         return np.clip(obs, -OBS_LIMIT, OBS_LIMIT).astype(np.float32)
 
     # -- rendering ---------------------------------------------------------------------------------------

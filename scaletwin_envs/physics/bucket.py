@@ -41,9 +41,21 @@ def load_centroid(g: LinkageGeometry, fill: float) -> np.ndarray:
     Material settles into the corner between floor and back wall first, so the centroid moves from the
     struck triangle's heel region towards the heaped section's centroid as the bucket fills.
     """
-    corner_c, full_c = _centroid_ends(g)
+    return np.array(centroid_at(centroid_ends(g), fill))
+
+
+def centroid_at(ends: tuple[tuple[float, float], tuple[float, float]], fill: float) -> tuple[float, float]:
+    """:func:`load_centroid` (x, z, m) from the :func:`centroid_ends` of the bucket, as Python floats (an env
+    calls it every step while the bucket fills)."""
+    (cx, cz), (hx, hz) = ends
     f = min(max(float(fill), 0.0), 1.0)
-    return corner_c + (full_c - corner_c) * f
+    return cx + (hx - cx) * f, cz + (hz - cz) * f
+
+
+def centroid_ends(g: LinkageGeometry) -> tuple[tuple[float, float], tuple[float, float]]:
+    """Load centroid (x, z, m; reference pose) of a nearly empty and of a heaped bucket."""
+    corner_c, full_c = _centroid_ends(g)
+    return (float(corner_c[0]), float(corner_c[1])), (float(full_c[0]), float(full_c[1]))
 
 
 @lru_cache(maxsize=32)

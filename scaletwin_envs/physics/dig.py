@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from scaletwin_envs.physics.bucket import capacity_fraction
-from scaletwin_envs.physics.earthmoving import bearing_pressure, blade_force, side_drag
+from scaletwin_envs.physics.earthmoving import soil_resistance
 from scaletwin_envs.physics.pile import Pile
 from scaletwin_envs.specs.soil import SoilSpec
 
@@ -55,6 +55,9 @@ class DigModel:
         self.load_volume = 0.0  # m³ in the bucket
         self.spilled_volume = 0.0  # m³ spilled since reset
         self.creep = CREEP_SPEED * math.sqrt(GRAVITY * length_scale)
+        self._forces = soil_resistance(soil)  # the soil's constants, worked out once
+        self._edge_area = width * EDGE_THICKNESS * length_scale  # m²
+        self._tan_repose = math.tan(soil.repose_angle)
 
     @property
     def load_mass(self) -> float:
@@ -101,10 +104,10 @@ class DigModel:
         blen = math.hypot(bx, bz) or 1e-12
         rake = math.acos(max(-1.0, min(1.0, -(bx * tx + bz * tz) / blen)))
         depth = max(depth, 0.0)
-        along, press = blade_force(self.soil, self.width, depth, rake)
-        edge_area = self.width * EDGE_THICKNESS * self.length_scale
-        bearing = edge_area * bearing_pressure(self.soil, depth) if depth > 0 else 0.0
+        forces = self._forces
+        along, press = forces.blade(self.width, depth, rake)
+        bearing = self._edge_area * forces.bearing(depth) if depth > 0 else 0.0
         side_depth = max(side_depth, 0.0)
-        buried = min(math.hypot(ex - floor_back[0], ez - floor_back[1]), side_depth / math.tan(self.soil.repose_angle))
-        side = side_drag(self.soil, side_depth, buried)
+        buried = min(math.hypot(ex - floor_back[0], ez - floor_back[1]), side_depth / self._tan_repose)
+        side = forces.side(side_depth, buried)
         return DigForces(along + bearing + side, press, (tx, tz), along, bearing, side, depth)

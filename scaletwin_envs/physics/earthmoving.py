@@ -48,30 +48,61 @@ def _table(soil: SoilSpec) -> tuple[list[float], list[float]]:
     return quad.tolist(), lin.tolist()
 
 
+class SoilResistance:
+    """The soil's constants of :func:`blade_force`, :func:`bearing_pressure` and :func:`side_drag`, worked out once
+    (the β-minimised table, the bearing factors, K0, tan δ), for callers that evaluate them several times per
+    control step; the same arithmetic as those functions, which delegate to it."""
+
+    def __init__(self, soil: SoilSpec) -> None:
+        self.quad, self.lin = _table(soil)
+        self.delta = soil.wall_friction_angle
+        phi = soil.friction_angle
+        n_q = math.exp(math.pi * math.tan(phi)) * math.tan(math.pi / 4 + phi / 2) ** 2  # Prandtl–Reissner
+        self.n_q, self.n_c = n_q, (n_q - 1.0) / math.tan(phi) if phi > 1e-6 else math.pi + 2.0
+        self.cohesion, self.unit_weight, self.adhesion = soil.cohesion, soil.unit_weight, soil.adhesion
+        self.k0 = 1.0 - math.sin(phi)  # at-rest earth pressure coefficient (Jaky)
+        self.tan_delta = math.tan(soil.wall_friction_angle)
+
+    def blade(self, width: float, depth: float, rake: float) -> tuple[float, float]:
+        """:func:`blade_force`."""
+        if depth <= 0.0:
+            return 0.0, 0.0
+        quad, lin = self.quad, self.lin
+        r = min(max(rake, RAKE_MIN), RAKE_MAX)
+        k = min(int((r - RAKE_MIN) / _RAKE_STEP), len(quad) - 2)
+        t = (r - RAKE_MIN) / _RAKE_STEP - k
+        p = width * (((1 - t) * quad[k] + t * quad[k + 1]) * depth * depth
+                     + ((1 - t) * lin[k] + t * lin[k + 1]) * depth)
+        return p * math.sin(r + self.delta), p * math.cos(r + self.delta)
+
+    def bearing(self, depth: float) -> float:
+        """:func:`bearing_pressure`."""
+        return self.cohesion * self.n_c + self.unit_weight * max(depth, 0.0) * self.n_q
+
+    def side(self, depth: float, length: float) -> float:
+        """:func:`side_drag`."""
+        if depth <= 0.0 or length <= 0.0:
+            return 0.0
+        normal = 0.5 * self.k0 * self.unit_weight * depth * depth * length
+        return 2.0 * (normal * self.tan_delta + self.adhesion * depth * length)
+
+
+@lru_cache(maxsize=64)
+def soil_resistance(soil: SoilSpec) -> SoilResistance:
+    """The :class:`SoilResistance` of a soil (cached)."""
+    return SoilResistance(soil)
+
+
 def blade_force(soil: SoilSpec, width: float, depth: float, rake: float) -> tuple[float, float]:
     """Resistance along travel and force pressing into the soil (N) of a blade at ``depth`` (m)."""
-    if depth <= 0.0:
-        return 0.0, 0.0
-    quad, lin = _table(soil)
-    r = min(max(rake, RAKE_MIN), RAKE_MAX)
-    k = min(int((r - RAKE_MIN) / _RAKE_STEP), len(quad) - 2)
-    t = (r - RAKE_MIN) / _RAKE_STEP - k
-    p = width * (((1 - t) * quad[k] + t * quad[k + 1]) * depth * depth + ((1 - t) * lin[k] + t * lin[k + 1]) * depth)
-    return p * math.sin(r + soil.wall_friction_angle), p * math.cos(r + soil.wall_friction_angle)
+    return soil_resistance(soil).blade(width, depth, rake)
 
 
 def bearing_pressure(soil: SoilSpec, depth: float) -> float:
     """Ultimate bearing pressure at the cutting edge (Pa): c N_c + γ d N_q (Prandtl–Reissner factors)."""
-    phi = soil.friction_angle
-    n_q = math.exp(math.pi * math.tan(phi)) * math.tan(math.pi / 4 + phi / 2) ** 2
-    n_c = (n_q - 1.0) / math.tan(phi) if phi > 1e-6 else math.pi + 2.0
-    return soil.cohesion * n_c + soil.unit_weight * max(depth, 0.0) * n_q
+    return soil_resistance(soil).bearing(depth)
 
 
 def side_drag(soil: SoilSpec, depth: float, length: float) -> float:
     """Friction and adhesion on both side plates (N) buried ``depth`` over ``length`` (m), at-rest pressure."""
-    if depth <= 0.0 or length <= 0.0:
-        return 0.0
-    k0 = 1.0 - math.sin(soil.friction_angle)
-    normal = 0.5 * k0 * soil.unit_weight * depth * depth * length
-    return 2.0 * (normal * math.tan(soil.wall_friction_angle) + soil.adhesion * depth * length)
+    return soil_resistance(soil).side(depth, length)
