@@ -539,9 +539,44 @@ def estimate_sensor_tau(real: Mapping[str, np.ndarray], twin: Mapping[str, np.nd
     return tau if c_tau <= (1.0 - MIN_TAU_GAIN) * costs[0] else 0.0
 
 
+def estimate_channel_taus(real: Mapping[str, np.ndarray], twin: Mapping[str, np.ndarray], dt: float,
+                          channels: Sequence[str] | None = None) -> dict[str, float]:
+    """A first-order sensor time constant (s) per channel of ``channels`` (default: every compared channel present
+    and finite in both): for each, the ``tau`` in ``[0, TAU_MAX]`` minimising that channel's mean squared residual
+    of ``real`` against the twin through :func:`first_order_filter` (the search of :func:`estimate_sensor_tau` on
+    one channel, without its gain threshold: a channel whose filter gains nothing gets the best ``tau`` all the
+    same, 0 when none lowers its residual).
+
+    Sensors of one logger need not share a filter (a load pin's amplifier, a pressure transducer's snubber, an
+    inclinometer's averaging differ), and a common ``tau`` leaves each channel the lag by which its own differs,
+    which reads as a discrepancy. Call it only where a common filter was found (:func:`estimate_sensor_tau` > 0):
+    a lag on one channel of an unfiltered log is a sensor fault the diagnosis names (``sensor_delay``).
+    """
+    chosen = channels if channels is not None else COMPARED
+    names = [c for c in chosen if c in real and c in twin and np.all(np.isfinite(real[c]))
+             and np.all(np.isfinite(twin[c])) and np.std(twin[c]) > 0]
+    grid = np.concatenate(([0.0], np.geomspace(0.01 * dt, TAU_MAX, 24)))
+    out = {}
+    for c in names:
+
+        def cost(tau: float, c: str = c) -> float:
+            return float(np.mean((real[c] - first_order_filter(twin[c], dt, tau)) ** 2))
+
+        costs = np.array([cost(v) for v in grid])
+        best = int(np.argmin(costs))
+        if best == 0:
+            out[c] = 0.0
+            continue
+        lo, hi = grid[best - 1], grid[min(best + 1, len(grid) - 1)]
+        res = optimize.minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": 1e-4})
+        out[c] = float(res.x) if res.fun < costs[best] else float(grid[best])
+    return out
+
+
 __all__ = [
     "KINEMATIC", "MAX_GAP_STEPS", "InputReport", "OffsetEstimate", "PreparedLog",
-    "antialias_filter", "bridge_gaps", "control_grid", "end_level", "estimate_offset", "estimate_sensor_tau",
+    "antialias_filter", "bridge_gaps", "control_grid", "end_level", "estimate_channel_taus", "estimate_offset",
+    "estimate_sensor_tau",
     "first_order_filter", "prepare_log", "resample_commands", "resample_phases", "resample_signal",
     "shift_signals",
 ]

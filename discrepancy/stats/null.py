@@ -15,7 +15,7 @@ import numpy as np
 
 from discrepancy.context import Context, huber
 from discrepancy.effects import Effect
-from discrepancy.stats.locate import NullCalibration, window_stats
+from discrepancy.stats.locate import NullCalibration, Window, window_stats
 from discrepancy.stats.noise import NoiseModel, NullSpec, sensor_noise
 from discrepancy.twin.plant import Plan, plan
 
@@ -62,24 +62,40 @@ def calibrate(ctx: Context, spec: NullSpec | None = None, effects: Sequence[Effe
     spread = np.array([ctx.scales.signal_scale[s] for s in ctx.names])
     residual = np.nan_to_num(ctx.real_matrix - center)
     regressors = np.nan_to_num(center)  # what the twin's own signals explain is not noise (sensor_noise)
-    noise = NoiseModel.build(ctx.names, sensor_noise(residual, spread, regressors), dev)
-    wins = ctx.windows()
+    noise, calibration, cost = null_from_arrays(ctx.names, residual, dev, spread, regressors, ctx.windows(),
+                                                np.random.default_rng([spec.seed, 7919]))
+    return NullModel(noise, calibration, cost, _channel_noise(ctx, center_result.signals))
+
+
+def null_from_arrays(names: tuple[str, ...], residual: np.ndarray, dev: np.ndarray, spread: np.ndarray,
+                     regressors: np.ndarray, wins: list[Window], rng: np.random.Generator
+                     ) -> tuple[NoiseModel, NullCalibration, float]:
+    """Noise model, window calibration and expected objective from arrays (what :func:`calibrate` replays).
+
+    Args:
+        names: signal names.
+        residual: real minus twin, (steps, signals), signal units.
+        dev: perturbed twin runs minus the twin, (runs, steps, signals), signal units (finite).
+        spread: each signal's spread, (signals,), signal units (floors the noise).
+        regressors: the twin's signals (steps, signals), whose fit is not noise.
+        wins: the windows tested.
+        rng: draws the null runs' sensor noise.
+    """
+    noise = NoiseModel.build(names, sensor_noise(residual, spread, regressors), dev)
     sizes = np.array([w.size for w in wins])
-    rng = np.random.default_rng([spec.seed, 7919])
     null_stats, costs, offsets = [], [], []
-    for k in range(len(runs)):
+    for k in range(len(dev)):
         sensed = noise.sample(rng)  # sensor noise as modelled (drift included)
         fake = dev[k] + sensed  # scored like the recording: a noise model re-estimated (from the noise: the
         # twin's deviations would pass for coloured noise and make the null too narrow), with the spread of all
         # runs (a run's own rare jump left out would look like a huge residual and make that signal blind)
-        model = NoiseModel.build(ctx.names, sensor_noise(sensed, spread, regressors), dev)
+        model = NoiseModel.build(names, sensor_noise(sensed, spread, regressors), dev)
         z = model.whiten(fake)
         null_stats.append(window_stats(z, wins))
         costs.append(float(np.sum(huber(z))))
         offsets.append(model.bias_evidence(fake))  # what a constant offset gains on noise alone
     noise.bias_null = np.mean(offsets, axis=0) if offsets else None
-    return NullModel(noise, NullCalibration.fit(null_stats, sizes), float(np.mean(costs)),
-                     _channel_noise(ctx, center_result.signals))
+    return noise, NullCalibration.fit(null_stats, sizes), float(np.mean(costs))
 
 
 def _channel_noise(ctx: Context, twin: dict[str, np.ndarray]) -> dict[str, float]:

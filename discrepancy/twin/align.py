@@ -19,6 +19,7 @@ import numpy as np
 from discrepancy.data.episode import EpisodeData
 from discrepancy.data.fieldlog import (
     OffsetEstimate,
+    estimate_channel_taus,
     estimate_offset,
     estimate_sensor_tau,
     first_order_filter,
@@ -68,6 +69,20 @@ def _offset(ep: EpisodeData, twin: dict, notes: list[str]) -> tuple[OffsetEstima
     notes.append(f"the kinematic channels lag the commands by {offset.offset:.3g} s, but the lift and tilt circuits "
                  "disagree: left to the diagnosis (an actuator dead time?)")
     return offset, False
+
+
+def _channel_taus(ep: EpisodeData, spec: TwinSpec, runner: Runner, nominal: SimResult,
+                  shifted: bool) -> tuple[tuple[str, float], ...]:
+    """Each channel's own sensor time constant (s) against the twin (the log ``ep`` as compared, its offset
+    undone when ``shifted``; ``nominal`` the unfiltered replay of the commands before that), where it differs from
+    the common ``spec.sensor_tau`` by at least :data:`TOLERANCE` control steps (:func:`estimate_channel_taus`)."""
+    if shifted:
+        again = runner.with_twin(dataclasses.replace(spec, sensor_tau=0.0, sensor_taus=())).run_many(
+            ep.commands, [Plan()])[0]
+        nominal = nominal if again.error else again
+    rows = len(ep)
+    taus = estimate_channel_taus(ep.signals, {c: v[:rows] for c, v in nominal.signals.items()}, ep.dt)
+    return tuple(sorted((c, t) for c, t in taus.items() if abs(t - spec.sensor_tau) >= TOLERANCE * ep.dt))
 
 
 def align(ep: EpisodeData, spec: TwinSpec, runner: Runner) -> tuple[EpisodeData, TwinSpec, Alignment]:
@@ -123,9 +138,13 @@ def align(ep: EpisodeData, spec: TwinSpec, runner: Runner) -> tuple[EpisodeData,
         ep = shift_signals(ep, total)
         notes.append(f"time offset between the log's signals and its commands: {total:.3g} s, undone")
     if tau > 0:
-        spec = dataclasses.replace(spec, sensor_tau=tau)
+        spec = dataclasses.replace(spec, sensor_tau=tau, sensor_taus=_channel_taus(ep, spec, runner, nominal,
+                                                                                  applied))
         notes.append(f"the log's channels went through a first-order sensor filter: tau {tau:.3g} s estimated, "
                      "applied to the twin")
+        if spec.sensor_taus:
+            own = ", ".join(f"{c} {t:.3g}" for c, t in spec.sensor_taus)
+            notes.append(f"each channel's own sensor filter, tau s (applied to the twin): {own}")
     if ep.input_report is not None:
         ep = dataclasses.replace(ep, input_report=dataclasses.replace(ep.input_report, sensor_tau=tau))
     if offset is not None and applied:

@@ -36,7 +36,9 @@ class TwinSpec:
 
     ``start``: reset options (``WheelLoaderDigEnv.RESET_OPTIONS``: start pose and pile) estimated from a log that
     has no seed; given values replace what the seed would draw. ``sensor_tau``: time constant (s) of a first-order
-    sensor filter the log's channels went through, applied to every twin signal (0: none).
+    sensor filter the log's channels went through, applied to every twin signal (0: none); ``sensor_taus``:
+    ``(channel, time constant s)`` where a channel's own filter differs from ``sensor_tau`` (estimated only where
+    the log shows a common filter, :func:`~discrepancy.twin.align.align`).
     """
 
     loader: LoaderSpec
@@ -45,6 +47,7 @@ class TwinSpec:
     seed: int = 0
     start: tuple[tuple[str, float], ...] = ()
     sensor_tau: float = 0.0
+    sensor_taus: tuple[tuple[str, float], ...] = ()
 
     @classmethod
     def from_episode(cls, ep: EpisodeData) -> TwinSpec:
@@ -91,11 +94,13 @@ class TwinSpec:
         kwargs = _physics_kwargs(doc.get("env_kwargs", ep.env_kwargs if ep is not None else {}))
         seed = doc.get("seed", ep.seed if ep is not None and ep.seed is not None else 0)
         start = tuple(sorted((str(k), float(v)) for k, v in dict(doc.get("start", {})).items()))
-        return cls(loader, soil, kwargs, int(seed), start, float(doc.get("sensor_tau", 0.0)))
+        taus = tuple(sorted((str(k), float(v)) for k, v in dict(doc.get("sensor_taus", {})).items()))
+        return cls(loader, soil, kwargs, int(seed), start, float(doc.get("sensor_tau", 0.0)), taus)
 
     def to_dict(self) -> dict[str, Any]:
         return {"scale": self.loader.to_dict(), "soil": self.soil.to_dict(), "env_kwargs": dict(self.env_kwargs),
-                "seed": self.seed, "start": dict(self.start), "sensor_tau": self.sensor_tau}
+                "seed": self.seed, "start": dict(self.start), "sensor_tau": self.sensor_tau,
+                "sensor_taus": dict(self.sensor_taus)}
 
 
 def _scale(value: Any) -> float | str:
@@ -165,8 +170,9 @@ class Simulator:
         signals = {k: _padded([r[k] for r in rows], n) for k in names}
         time = env.dt * np.arange(1, n + 1)
         signals = apply_sensors(signals, time, plan.sensors) if plan.sensors else signals
-        if self.twin.sensor_tau > 0.0:
-            signals = {k: first_order_filter(v, env.dt, self.twin.sensor_tau) for k, v in signals.items()}
+        if self.twin.sensor_tau > 0.0 or self.twin.sensor_taus:
+            own = dict(self.twin.sensor_taus)
+            signals = {k: first_order_filter(v, env.dt, own.get(k, self.twin.sensor_tau)) for k, v in signals.items()}
         return SimResult(signals, np.asarray(phases + ["error"] * (n - len(phases)), dtype=object), error)
 
 

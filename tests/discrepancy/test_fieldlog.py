@@ -16,6 +16,7 @@ from discrepancy.data.fieldlog import (
     MAX_GAP_STEPS,
     bridge_gaps,
     control_grid,
+    estimate_channel_taus,
     estimate_offset,
     estimate_sensor_tau,
     first_order_filter,
@@ -296,3 +297,26 @@ def test_sensor_time_constant_is_estimated(clean: EpisodeData) -> None:
     assert estimate_sensor_tau(real, twin, DT, channels) == pytest.approx(tau, rel=0.2)
     noisy = {k: v + 0.01 * spread[k] * rng.standard_normal(len(v)) for k, v in twin.items()}
     assert estimate_sensor_tau(noisy, twin, DT, channels) == 0.0
+
+
+def test_each_channels_own_time_constant_is_estimated(clean: EpisodeData) -> None:
+    """Sensors of one logger with different filters (0.05-0.3 s): each channel's own tau is recovered, and a
+    channel that went through no filter gets 0, where the one common tau would leave every channel a lag."""
+    fs = 1000.0
+    taus = {"F21": 0.05, "F31": 0.3, "Pf_lift": 0.12, "x_b": 0.2, "lift_extension": 0.0}
+    twin, spread = clean.signals, signal_spread(clean.signals)
+    rng = np.random.default_rng(5)
+    fine_t = np.arange(clean.time[0], clean.time[-1] + 1e-9, 1 / fs)
+    real = {}
+    for k, tau in taus.items():
+        fine = CubicSpline(clean.time, twin[k])(fine_t)
+        if tau > 0:
+            a = np.exp(-1 / (fs * tau))
+            fine = lfilter([1 - a], [1, -a], fine, zi=[a * fine[0]])[0]
+        real[k] = np.interp(clean.time, fine_t, fine) + 0.002 * spread[k] * rng.standard_normal(len(clean.time))
+    got = estimate_channel_taus(real, twin, DT, tuple(taus))
+    assert set(got) == set(taus)
+    for k, tau in taus.items():
+        assert got[k] == pytest.approx(tau, abs=0.2 * tau + 0.02), k
+    common = estimate_sensor_tau(real, twin, DT, tuple(taus))
+    assert any(abs(common - t) > 0.08 for t in taus.values())  # no single tau fits them all
