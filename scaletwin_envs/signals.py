@@ -9,7 +9,9 @@ inertia absorbs the difference, so the bare actuator force, sampled once per con
 forces (it was up to 14× off on holds); the piston force is smooth, and it is what a pressure transducer on the
 cylinder reads. Route 2 is the planar Newton–Euler of the linkage (:mod:`scaletwin_envs.physics.newton_euler`) from
 kinematics, masses and the applied loads alone (gravity, soil, ground contact), never looking at a pin constraint
-force. Their difference is reported as ``residual_*`` (relative to the machine's weight).
+force. Their difference is reported as ``residual_*`` (relative to the machine's weight). Route 2 is a check,
+read when asked (``read(..., two_routes=True)``; the envs ask for it while a recorder watches them, see
+:class:`scaletwin_envs.envs.loader_base.LoaderEnv`).
 
 All signals are SI: forces N, lengths m, mass kg, accelerations m/s² (kinematic, not proper), angular accelerations
 rad/s², velocities m/s and rad/s. Planar vectors are (x forward, z up) in the world frame.
@@ -113,6 +115,9 @@ class SignalReader:
         self._drive_dof = int(model.jnt_dofadr[self.ids.joints["drive"]])
         self._f21_row = 0  # first constraint row of link_b_to_bucket at the last read (checked before use)
         self._data: mujoco.MjData | None = None
+        # views of the model's arrays (read at every step, so a model altered after construction is seen)
+        self._body_mass, self._gravity_vec = model.body_mass, model.opt.gravity
+        self._dof_armature, self._dof_damping = model.dof_armature, model.dof_damping
 
     def _bind(self, data: mujoco.MjData) -> None:
         """Keep views of the ``data`` arrays read every step (their memory lives as long as ``data``; the
@@ -175,12 +180,12 @@ class SignalReader:
         self._bind(data)
         b, p = self._bucket, self._payload
         xipos, cvel, cacc = self._xipos, self._cvel, self._cacc
-        origin, g = self._subtree_com[self._root].tolist(), self.model.opt.gravity.tolist()
+        origin, g = self._subtree_com[self._root].tolist(), self._gravity_vec.tolist()
         (cbx, cby, cbz), (cpx, cpy, cpz) = xipos[b].tolist(), xipos[p].tolist()
         vbx, vbz, abx, abz, wb, dwb = _point_motion([cbx, cby, cbz], cvel[b].tolist(), cacc[b].tolist(), origin, g)
         vpx, vpz, apx, apz, _, _ = _point_motion([cpx, cpy, cpz], cvel[p].tolist(), cacc[p].tolist(), origin, g)
-        mass = self.model.body_mass
-        mb, mp = float(mass[b]), float(mass[p])
+        mass = self._body_mass
+        mb, mp = mass.item(b), mass.item(p)
         m_b = mb + mp
         com = ((mb * cbx + mp * cpx) / m_b, (mb * cbz + mp * cpz) / m_b)
         acc = ((mb * abx + mp * apx) / m_b, (mb * abz + mp * apz) / m_b)
@@ -285,8 +290,7 @@ class SignalReader:
     def _armature_force(self, data: mujoco.MjData, cylinder: str) -> float:
         """Slide forces MuJoCo applies in joint space only: armature inertia and viscous damping (N)."""
         dof = self._slide_dof[cylinder]
-        m = self.model
-        return float(m.dof_armature[dof] * data.qacc[dof] + m.dof_damping[dof] * data.qvel[dof])
+        return self._dof_armature.item(dof) * data.qacc.item(dof) + self._dof_damping.item(dof) * data.qvel.item(dof)
 
     def _limit_force(self, data: mujoco.MjData, cylinder: str) -> float:
         j = self.ids.joints[f"{cylinder}_cylinder"]

@@ -25,21 +25,25 @@ class CylinderValve:
     hold_time: float
     hold_at: float | None = None
 
+    def __post_init__(self) -> None:
+        # the spec's flow-limited speeds (m/s), read at every control step: its properties recompute them
+        self._extend, self._retract = self.cylinder.extend_speed, self.cylinder.retract_speed
+
     def speed(self, command: float, position: float) -> float:
         """Slide speed setpoint, m/s."""
         if abs(command) < HOLD_BAND:
             if self.hold_at is None:
                 self.hold_at = position
             correction = (self.hold_at - position) / self.hold_time
-            limit = 0.1 * self.cylinder.extend_speed
+            limit = 0.1 * self._extend
             return max(-limit, min(limit, correction))
         self.hold_at = None
         stroke = self.upper - self.lower
         if command > 0:
             room = (self.upper - position) / (CUSHION * stroke)
-            return command * self.cylinder.extend_speed * max(0.0, min(1.0, room))
+            return command * self._extend * max(0.0, min(1.0, room))
         room = (position - self.lower) / (CUSHION * stroke)
-        return command * self.cylinder.retract_speed * max(0.0, min(1.0, room))
+        return command * self._retract * max(0.0, min(1.0, room))
 
     def reset(self) -> None:
         self.hold_at = None

@@ -217,7 +217,7 @@ class WheelLoaderLoadTruckEnv(WheelLoaderDigEnv):
         overload_cost_weight: float = 1.0,
         frame_skip: int = DEFAULT_FRAME_SKIP,
         external_force_substeps: int = DEFAULT_EXTERNAL_FORCE_SUBSTEPS,
-        two_route_check: bool = True,
+        two_route_check: bool | None = None,
         render_mode: str | None = None,
         width: int = 640,
         height: int = 480,

@@ -13,6 +13,12 @@ Gymnasium conventions every loader shares:
 * after a step that ended in a simulation error (``info["sim_error"]``), stepping again without ``reset`` raises
   :class:`EpisodeFinishedError`: MuJoCo has reset the diverged state, so carrying on would silently continue
   from a state the policy never saw;
+* the second, independent route to the pin forces (Newton–Euler of the linkage, the ``*_route2`` and
+  ``residual_*`` signals) is a check, computed on request: ``two_route_check=True`` every step, ``False`` never, and
+  ``None`` (the default) only while a recorder watches the env (:class:`~scaletwin_envs.recording.recorder.
+  EpisodeRecorder`, :class:`~scaletwin_envs.recording.rerun_log.RerunLogger`, which call
+  :meth:`LoaderEnv.request_two_route_check`), so recordings, sweeps and replays carry both routes while plain
+  stepping (training, rollouts) skips the solve (about a fifth of the env's own time per step);
 * ``render_mode="human"`` needs a display: without one (Linux without ``DISPLAY``/``WAYLAND_DISPLAY``, or
   ``MUJOCO_GL=egl``/``osmesa``) the constructor raises ``ValueError`` instead of the GL library aborting the
   process, and ``"human"`` is left out of the instance's ``metadata["render_modes"]`` (so gymnasium's
@@ -75,7 +81,7 @@ class LoaderEnv(MujocoEnv):
         render_mode: str | None = None,
         width: int = 640,
         height: int = 480,
-        two_route_check: bool = True,
+        two_route_check: bool | None = None,
     ) -> None:
         if not isinstance(scale, int | float) and make_law(law) != PRODUCT_LINE:
             raise ValueError(f"law={law!r} applies to float scales only; scale={scale!r} is a fixed machine (a preset "
@@ -97,7 +103,10 @@ class LoaderEnv(MujocoEnv):
                              "with scaletwin view")
         self.build_options = BuildOptions.for_spec(self.loader)
         self.external_force_substeps = external_force_substeps
-        self.two_route_check = two_route_check
+        if two_route_check is not None and not isinstance(two_route_check, bool | np.bool_):
+            raise ValueError(f"two_route_check must be True, False or None (on request), got {two_route_check!r}")
+        self.two_route_check = None if two_route_check is None else bool(two_route_check)
+        self._two_routes = self.two_route_check is True  # whether signals include route 2 now
         dt = self.build_options.timestep * frame_skip
         modes = [m for m in type(self).metadata["render_modes"] if not (headless and m == "human")]
         self.metadata = {**type(self).metadata, "render_modes": modes, "render_fps": int(np.round(1.0 / dt))}
@@ -198,7 +207,19 @@ class LoaderEnv(MujocoEnv):
         return None
 
     def _read_signals(self, soil_force: np.ndarray) -> dict[str, float]:
-        return self.signal_reader.read(self.data, soil_force, two_routes=self.two_route_check)
+        return self.signal_reader.read(self.data, soil_force, two_routes=self._two_routes)
+
+    @property
+    def computes_two_routes(self) -> bool:
+        """Whether the signals include route 2 (``*_route2``, ``residual_*``) now."""
+        return self._two_routes
+
+    def request_two_route_check(self) -> bool:
+        """Compute route 2 from the next signal read on, unless the env was made with ``two_route_check=False``;
+        returns whether it is on. Recorders call it before the reset of the episode they record."""
+        if self.two_route_check is None:
+            self._two_routes = True
+        return self._two_routes
 
     def _bad_state_warnings(self) -> int:
         number = self.data.warning.number.tolist()

@@ -4,7 +4,8 @@ The machine (:mod:`scaletwin_envs.builder`) drives straight at a pile (:mod:`sca
 whose resistance follows the fundamental earthmoving equation (:mod:`scaletwin_envs.physics.dig`); material
 inside the bucket cavity becomes part of the combined bucket + load body, whose mass and centre of mass
 change as it fills and spills. Every step logs the paper's Eq. (10) and Eq. (23) signals in
-``info["signals"]`` (SI), with each pin force obtained by two independent routes.
+``info["signals"]`` (SI); each pin force also by a second, independent route (``two_route_check``): every
+step with ``True``, and by default while a recorder watches the env.
 
 Action: ``[lift, tilt, drive]`` in [-1, 1]; positive raises the boom, curls the bucket back, drives forward;
 0 holds. Observation: dimensionless (lengths / boom length L, speeds / √(gL), forces / weight or relief
@@ -39,6 +40,16 @@ Version history:
     (it was ignored); ``render_mode="human"`` without a display raises ``ValueError`` (the GL library aborted);
     the per-step soil force, signals and observation code reads MuJoCo's arrays with less Python overhead, with
     bit-identical results. No value a step returns changed, so the id stays v0.
+    v0 (2026-11-26, same dynamics, observations and rewards, bit for bit): ``two_route_check`` defaults to
+    ``None``: the second route to the pin forces (``*_route2``, ``residual_*`` signals) is computed while a
+    recorder watches the env (``EpisodeRecorder``/``RerunLogger``: recordings, sweeps, replays, ``scaletwin
+    simulate --parquet/--rrd``) or every step with ``two_route_check=True``; a plain ``gym.make`` no longer
+    solves it on every step (it was a fifth of the env's own time per step), and its signals lack those keys, as
+    with ``two_route_check=False`` before. The per-step signals, soil force, fill transfer and observation run
+    with less Python overhead (``env.step`` from 0.58–0.60 to about 0.8 of raw ``mj_step``), every value
+    bit-identical; signal values are plain floats (some were ``np.float64``). The physics timestep stays
+    Froude-scaled (1 ms × √λ): a larger one at the mini does not converge (see
+    ``benchmarks/results/env_throughput.md``).
 """
 
 from __future__ import annotations
@@ -106,7 +117,10 @@ class WheelLoaderDigEnv(LoaderEnv):
         success_fill: fill factor counted as a successful dig.
         fill_reward_weight, time_cost_weight, energy_cost_weight, spill_cost_weight: reward weights.
         frame_skip, external_force_substeps: physics steps per control step / per soil-force update.
-        two_route_check: also solve the Newton–Euler route every step (``*_route2``, ``residual_*`` signals).
+        two_route_check: the second route to the pin forces (Newton–Euler of the linkage, never reading a pin
+            constraint force; ``*_route2`` and ``residual_*`` signals): ``True`` every step, ``False`` never,
+            ``None`` (default) on request: while a recorder (``EpisodeRecorder``, ``RerunLogger``, so
+            ``record_episode``, sweeps, replays and ``scaletwin simulate --parquet/--rrd``) watches the env.
         render_mode, width, height: as in gymnasium's MuJoCo environments (``"human"`` needs a display).
     """
 
@@ -135,7 +149,7 @@ class WheelLoaderDigEnv(LoaderEnv):
         spill_cost_weight: float = 1.0,
         frame_skip: int = DEFAULT_FRAME_SKIP,
         external_force_substeps: int = DEFAULT_EXTERNAL_FORCE_SUBSTEPS,
-        two_route_check: bool = True,
+        two_route_check: bool | None = None,
         render_mode: str | None = None,
         width: int = 640,
         height: int = 480,
@@ -178,6 +192,9 @@ class WheelLoaderDigEnv(LoaderEnv):
                                     for c in (self.loader.lift, self.loader.tilt))
         self._vel6 = np.zeros(6)
         self._centroid_ends = centroid_ends(self.loader.geometry)  # load centroid, empty and heaped (m, reference pose)
+        # constants read every step, worked out once (the spec's properties recompute them at each access)
+        self._froude_time, self._weight = self.loader.froude_time, self.loader.weight  # s, N
+        self._time_limit = self.max_episode_time * self._froude_time  # s
         self.pile: Pile
         self.dig: DigModel
         self._last_obs = np.zeros(len(OBS_NAMES), dtype=np.float32)
@@ -296,7 +313,8 @@ class WheelLoaderDigEnv(LoaderEnv):
         a = self._validate_action(action)
         before = {"fill": self.dig.fill(), "spill": self.dig.spilled_volume / self.dig.capacity}
         error = self._simulate(self._command_to_ctrl(a))
-        self._t += self.dt
+        dt = self.dt
+        self._t += dt
         if error is None:
             sig = self._read_signals(self.soil_force())
             error = None if self._finite(sig) else "non-finite signals"
@@ -304,8 +322,10 @@ class WheelLoaderDigEnv(LoaderEnv):
             self.sim_error = error
             return self._last_obs.copy(), 0.0, False, True, self._error_info(error)
         self.signals = sig
-        power = sum(max(sig[f"Pf_{k}"] * self.cylinder_state(k)[1], 0.0) for k in ("lift", "tilt"))
-        self._work += power * self.dt
+        qvel = self._qvel
+        power = (max(sig["Pf_lift"] * float(qvel[self._slide_adr["lift"][1]]), 0.0)
+                 + max(sig["Pf_tilt"] * float(qvel[self._slide_adr["tilt"][1]]), 0.0))  # W, into the cylinders
+        self._work += power * dt
         self._max_x = max(self._max_x, float(self._qpos[0]))
         terms = self._reward_terms(before, power)
         reward = float(sum(terms.values()))
@@ -313,20 +333,20 @@ class WheelLoaderDigEnv(LoaderEnv):
         obs = self._get_obs()
         self._last_obs = obs
         done = self._cycle_complete()
-        truncated = self._t >= self.max_episode_time * self.loader.froude_time
+        truncated = self._t >= self._time_limit
         info = self._step_info(terms)
         if self.render_mode == "human":
             self.render()
         return obs, reward, done, truncated and not done, info
 
     def _reward_terms(self, before: Mapping[str, float], power: float) -> dict[str, float]:
-        w, L = self.weights, self.length
+        w, L, dt = self.weights, self.length, self.dt
         spill = self.dig.spilled_volume / self.dig.capacity
         work_scale = self.dig.capacity * self.soil.density * GRAVITY * L  # lifting a full bucket by L
         return {
             "fill": w["fill"] * (self.dig.fill() - before["fill"]),
-            "time": -w["time"] * self.dt / self.loader.froude_time,
-            "energy": -w["energy"] * power * self.dt / work_scale,
+            "time": -w["time"] * dt / self._froude_time,
+            "energy": -w["energy"] * power * dt / work_scale,
             "spill": -w["spill"] * (spill - before["spill"]),
         }
 
@@ -388,14 +408,15 @@ class WheelLoaderDigEnv(LoaderEnv):
         lift_ext, lift_v = self.cylinder_state("lift")
         tilt_ext, tilt_v = self.cylinder_state("tilt")
         (lift_force, lift_stroke, lift_speed), (tilt_force, tilt_stroke, tilt_speed) = self._obs_cylinders
+        valve_force = [self.actuator_force(k) for k in ("lift", "tilt")]  # N, the servo's output
         values = [
             sig["boom_angle"], sig["bucket_pitch"], lift_ext / lift_stroke, tilt_ext / tilt_stroke,
             lift_v / lift_speed, tilt_v / tilt_speed, sig["travel_speed"] / self.speed_scale,
             (edge[0] - float(self.pile.x[0])) / L, edge[1] / L, depth / L,
             self.pile.surface(edge[0] + 0.25 * L) / L, self.pile.surface(edge[0] + 0.5 * L) / L, self.dig.fill(),
-            self.actuator_force("lift") / lift_force, self.actuator_force("tilt") / tilt_force,
-            math.hypot(sig["R_x"], sig["R_z"]) / self.loader.weight,
-            self._t / (self.max_episode_time * self.loader.froude_time),
+            valve_force[0] / lift_force, valve_force[1] / tilt_force,
+            math.hypot(sig["R_x"], sig["R_z"]) / self._weight,
+            self._t / self._time_limit,
             self.dig.spilled_volume / self.dig.capacity, (float(self._qpos[0]) - self._start_x) / L,
         ]
         if all(map(math.isfinite, values)):  # the usual case: clip as Python floats, one conversion to float32

@@ -39,7 +39,9 @@ class EpisodeRecorder:
         seed: the seed the episode was reset with (stored in the provenance).
         policy: a description of what produced the commands.
 
-    The callback must see the reset (step 0, not a row) before the first step.
+    The callback must see the reset (step 0, not a row) before the first step. Made before that reset, it switches
+    the env's second route to the pin forces on (``*_route2``, ``residual_*`` columns) unless the env was made with
+    ``two_route_check=False``.
     """
 
     def __init__(self, env: gym.Env, seed: int | None = None, policy: str = "unknown") -> None:
@@ -57,6 +59,9 @@ class EpisodeRecorder:
         self._model_sha256: str | None = None
         self._last_info: Mapping[str, Any] = {}
         self._truck: tuple[str, ...] = ()  # TRUCK_UNITS columns this env reports (set at the reset)
+        request = getattr(self.unwrapped, "request_two_route_check", None)
+        if request is not None:  # a recording carries both routes unless the env was made without route 2
+            request()
 
     def __call__(self, step: int, action: np.ndarray, info: dict[str, Any]) -> None:
         if step == 0:

@@ -195,6 +195,9 @@ class RerunLogger:
         self.sender = SignalSender(rec, {**SIGNAL_UNITS, **TRUCK_UNITS}, length)
         self.scene = SceneLogger(self.unwrapped.model)
         self._pile_h: np.ndarray | None = None
+        request = getattr(self.unwrapped, "request_two_route_check", None)
+        if signals and request is not None:  # the route-2 residual plots need route 2 (unless the env refuses it)
+            request()
         self._clear()
 
     def _clear(self) -> None:
