@@ -22,8 +22,10 @@ SIGNAL_UNITS: dict[str, str] = {
 
 #: Design signals: dimensionless per-row quantities that follow from the machine's drawing and its measured pose
 #: and cylinder force (computed by ``scaling.data.product_line.add_design_signals``), with ``F21_linkage`` (N), the pin
-#: force of the massless linkage. Not recorded by the simulator; served models of a product line take them.
+#: force of the massless linkage. ``tilt_load`` is the pressure in the tilt cylinder's loaded chamber over its relief
+#: pressure (piston side when pushing, rod side when pulling): how hard the bucket is loaded, which the product-line
+#: error score reads. Not recorded by the simulator; served models of a product line take them.
 DESIGN_SIGNAL_UNITS: dict[str, str] = {"tilt_ratio": "1", "tilt_stroke": "1", "lift_stroke": "1", "fill": "1",
-                                       "F21_linkage": "N"}
+                                       "F21_linkage": "N", "tilt_load": "1"}
 #: Every quantity a served model may take: the recorded signals and the design signals.
 QUANTITY_UNITS: dict[str, str] = {**SIGNAL_UNITS, **DESIGN_SIGNAL_UNITS}

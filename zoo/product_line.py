@@ -161,7 +161,7 @@ def check_rows(target: pd.DataFrame, groups: tuple[Any, ...]) -> pd.DataFrame:
     digs = target[(target["kind"] == "dig") & judged_rows(target)]
     rows = digs[digs["episode"] == digs["episode"].min()]
     finite = finite_groups(rows, (*groups, PI1_LINKAGE))
-    _, target_vars = served_variables(PI1_LINKAGE, groups, "F21")
+    _, target_vars = served_variables(PI1_LINKAGE, groups, "F21", risk=True)
     return rows[finite][["machine", "episode", "t", *target_vars]].reset_index(drop=True)
 
 
@@ -202,7 +202,7 @@ def card_fields(model: DeltaModel, result: GeneralisationResult, reference: pd.S
     assert model.groups_ is not None
     name = cfg.name
     inputs = tuple(model_groups(model)[1])
-    source_vars, target_vars = served_variables(PI1_LINKAGE, inputs, "F21")
+    source_vars, target_vars = served_variables(PI1_LINKAGE, inputs, "F21", risk=True)
     residual, machines = result.calibration[name]
     quantiles = {str(c): [-group_weighted_quantile(-residual, machines, (1 + c) / 2),
                           group_weighted_quantile(residual, machines, (1 + c) / 2)] for c in COVERAGES}
@@ -268,7 +268,8 @@ def card_fields(model: DeltaModel, result: GeneralisationResult, reference: pd.S
             "summary": summary,
             **({"multi_source": {"sources": cfg.sources, **multi["metrics"]}} if multi else {}),
             "risk_note": "served per row (ScaledForce.risk): P(F21 more than 10 % off) from the novelty of the "
-                         "row's features among the training pairs', |ln δ1| and whether the bucket is at rest, "
+                         "row's features among the training pairs', |ln δ1|, whether the bucket is at rest and the "
+                         "tilt load (tilt-cylinder force over its relief force), "
                          "fitted on the calibration machines; risk_auroc: how well it separates the held-out "
                          "machines' rows more than 10 % off (0.5 = chance); it warns above a threshold that keeps "
                          "the warnings to at most 5 % of the rows of 90 % of the calibration machines; false alarms: "

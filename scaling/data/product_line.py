@@ -109,7 +109,7 @@ def add_design_signals(frame: pd.DataFrame, specs: Mapping[str, LoaderSpec]) -> 
 
     Args:
         frame: rows with ``machine``, ``boom_angle``, ``bucket_pitch`` (rad), ``lift_extension``,
-            ``tilt_extension`` (m) and ``m_load`` (kg).
+            ``tilt_extension`` (m), ``m_load`` (kg) and ``Pf_tilt`` (N, positive pushing).
         specs: machine label → :class:`LoaderSpec` (the design each row was measured on).
 
     Raises:
@@ -127,13 +127,17 @@ def add_design_signals(frame: pd.DataFrame, specs: Mapping[str, LoaderSpec]) -> 
         spec = specs[name]
         boom, pitch = frame["boom_angle"].to_numpy(float)[idx], frame["bucket_pitch"].to_numpy(float)[idx]
         ratio[idx] = [_ratio(spec, b, p) for b, p in zip(boom, pitch, strict=True)]
-    stroke = {n: (s.lift.stroke, s.tilt.stroke, s.rated_load) for n, s in specs.items()}
-    lift_s, tilt_s, rated = (labels.map({n: v[i] for n, v in stroke.items()}).to_numpy(float) for i in range(3))
+    per_machine = {n: (s.lift.stroke, s.tilt.stroke, s.rated_load, s.tilt.max_extend_force, s.tilt.max_retract_force)
+                   for n, s in specs.items()}
+    lift_s, tilt_s, rated, push, pull = (labels.map({n: v[i] for n, v in per_machine.items()}).to_numpy(float)
+                                         for i in range(5))
     out["tilt_ratio"] = ratio
     out["tilt_stroke"] = frame["tilt_extension"].to_numpy(float) / tilt_s
     out["lift_stroke"] = frame["lift_extension"].to_numpy(float) / lift_s
     out["fill"] = frame["m_load"].to_numpy(float) / rated
     out["F21_linkage"] = ratio * np.abs(frame["Pf_tilt"].to_numpy(float))
+    tilt = frame["Pf_tilt"].to_numpy(float)  # the loaded chamber's pressure over relief: piston side when pushing
+    out["tilt_load"] = np.where(tilt >= 0, tilt / push, -tilt / pull)
     return out
 
 

@@ -355,7 +355,8 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
                                     np.abs(log_pred), np.full(len(pairs), np.log(machine_score[target])),
                                     (kind == "static").astype(float)])
         g = None if models[name] is None else models[name].features(pairs)
-        return _Predicted(pairs, kind, log_pred, scale, pred, f21, _errors(pred, f21), features, g)
+        tilt_load = row_values(pairs, tgt, tgt["tilt_load"].to_numpy(float))
+        return _Predicted(pairs, kind, log_pred, scale, pred, f21, _errors(pred, f21), features, tilt_load, g)
 
     calibrators: dict[str, GroupConformal] = {}
     spread_calibrators: dict[str, GroupConformal] = {}
@@ -379,10 +380,12 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
             continue
         if models[name] is not None:
             cal_g, cal_log_pred = np.concatenate([c.g for c in cal]), np.concatenate([c.log_pred for c in cal])
+            cal_load = np.concatenate([c.tilt_load for c in cal])
             risk = row_risks[name] = RowRisk.fit(training_sample[name], cal_g, cal_log_pred, features[:, -1],
-                                                 np.concatenate([c.err for c in cal]), grp, miss=MISS, seed=seed)
+                                                 cal_load, np.concatenate([c.err for c in cal]), grp, miss=MISS,
+                                                 seed=seed)
             row_intervals[name] = RowInterval.fit(RowRisk.features(risk.novelty, cal_g, cal_log_pred,
-                                                                   features[:, -1]), residual, grp)
+                                                                   features[:, -1], cal_load), residual, grp)
 
     auroc_rows: dict[str, tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray], list[np.ndarray]]] = {}
     warn_share: dict[str, dict[str, float]] = {}
@@ -400,7 +403,8 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
             inside_served = np.full(len(p.err), np.nan)
             served_features = None  # what a served checkpoint knows of each row: one novelty query per row
             if name in row_risks and p.g is not None:
-                served_features = RowRisk.features(row_risks[name].novelty, p.g, p.log_pred, p.features[:, -1])
+                served_features = RowRisk.features(row_risks[name].novelty, p.g, p.log_pred, p.features[:, -1],
+                                                   p.tilt_load)
                 half = row_intervals[name].half_width(served_features, 0.9)
                 inside_served = (np.abs(p.pairs.log_delta - p.log_pred) <= half).astype(float)
             results.append(_summarise(m, name, "+".join(sources(name, m)), p.err, p.kind, p.pred, p.f21, inside,
@@ -458,7 +462,7 @@ ERROR_FEATURES = ("ln σ of ln δ1 (ensembles; 0 otherwise)", "ln input novelty"
 class _Predicted:
     """One model's prediction for one machine's judged rows: the pairs, each pair's row kind (:func:`row_kinds`),
     log δ1 and its scale, F21 predicted and actual (N), relative error, the error score's features
-    (:data:`ERROR_FEATURES`) and the model's feature rows g (None for direct-Pi)."""
+    (:data:`ERROR_FEATURES`), the target's tilt load (1) and the model's feature rows g (None for direct-Pi)."""
 
     pairs: DeltaDataset
     kind: np.ndarray
@@ -468,15 +472,20 @@ class _Predicted:
     f21: np.ndarray
     err: np.ndarray
     features: np.ndarray
+    tilt_load: np.ndarray
     g: np.ndarray | None = None
 
 
-def row_kinds(pairs: DeltaDataset, tgt: pd.DataFrame) -> np.ndarray:
-    """``"static"`` or ``"dynamic"`` for every pair (pairs keep target rows in order, minus dropped ones: matched
-    back by (episode, time))."""
-    label = np.where(at_rest(tgt), "static", "dynamic")
-    lookup = dict(zip(zip(tgt["episode"].to_numpy(), tgt["t"].to_numpy(), strict=True), label, strict=True))
+def row_values(pairs: DeltaDataset, tgt: pd.DataFrame, values: np.ndarray) -> np.ndarray:
+    """``values`` (one per row of ``tgt``) of every pair's target row (pairs keep target rows in order, minus
+    dropped ones: matched back by (episode, time))."""
+    lookup = dict(zip(zip(tgt["episode"].to_numpy(), tgt["t"].to_numpy(), strict=True), values, strict=True))
     return np.array([lookup[(e, t)] for e, t in zip(pairs.episode, pairs.t, strict=True)])
+
+
+def row_kinds(pairs: DeltaDataset, tgt: pd.DataFrame) -> np.ndarray:
+    """``"static"`` or ``"dynamic"`` for every pair (:func:`row_values` of the target rows' kind)."""
+    return row_values(pairs, tgt, np.where(at_rest(tgt), "static", "dynamic"))
 
 
 def _summarise(machine: str, model: str, source: str, err: np.ndarray, kind: np.ndarray, pred: np.ndarray,

@@ -205,6 +205,13 @@ def test_design_signals_on_a_simulated_line(line_frame: pd.DataFrame) -> None:
         assert f[col].between(-0.01, 1.01).all(), col
     assert (f["fill"] >= 0).all() and f["fill"].max() < 1.5
     assert f.groupby("machine")["fill"].max().min() > 0.3  # every machine loaded its bucket
+    # tilt load = the loaded chamber's pressure (the recorded p_tilt: piston side pushing, rod side pulling) over
+    # the relief pressure of each machine's own drawing; the relief valve caps it near 1 (transients let it pass a
+    # little), and every machine's digs reach it
+    relief = f["machine"].map({n: s.tilt.relief_pressure for n, s in LINE.specs().items()})
+    np.testing.assert_allclose(f["tilt_load"] * relief, f["p_tilt"], rtol=1e-9)
+    peak = f.groupby("machine")["tilt_load"].max()
+    assert peak.between(0.8, 1.5).all(), peak.to_dict()
     with pytest.raises(KeyError, match="no machine spec"):
         add_design_signals(f, {"other": make_loader("er12")})
     with pytest.raises(KeyError, match="m_load"):
@@ -555,12 +562,14 @@ def test_error_scores_survive_their_state() -> None:
     rng = np.random.default_rng(6)
     train_g = rng.normal(size=(600, 4))
     g, e, grp = rng.normal(size=(900, 4)), np.abs(rng.normal(0, 0.1, 900)), np.repeat(np.arange(3), 300)
-    log_delta, static = rng.normal(0, 0.05, 900), rng.random(900) < 0.4
-    risk = RowRisk.fit(train_g, g, log_delta, static, e * (1 + np.abs(g[:, 0])), grp)
+    log_delta, static, load = rng.normal(0, 0.05, 900), rng.random(900) < 0.4, rng.uniform(0.0, 0.6, 900)
+    risk = RowRisk.fit(train_g, g, log_delta, static, load, e * (1 + np.abs(g[:, 0])), grp)
     params, rows = risk.state()
     again = RowRisk.from_state(json.loads(json.dumps(params)), rows)
-    np.testing.assert_array_equal(again.risk(g, log_delta, static), risk.risk(g, log_delta, static))
+    np.testing.assert_array_equal(again.risk(g, log_delta, static, load), risk.risk(g, log_delta, static, load))
     assert again.score.threshold_ == risk.score.threshold_
+    with pytest.raises(ValueError, match="rebuild the checkpoint"):  # a card of the three-feature version
+        RowRisk.from_state({**params, "features": params["features"][:3]}, rows)
     with pytest.raises(ValueError, match="do not fit"):
         InputNovelty.from_state(params["novelty"], rows[:, :3])
     with pytest.raises(ValueError, match="inconsistent"):

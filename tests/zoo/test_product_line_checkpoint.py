@@ -18,7 +18,7 @@ import zoo
 from scaling.data.delta_dataset import DeltaDataset
 from scaling.data.product_line import PI1_LINKAGE, match_rows, nearest_machine, nearest_machines
 from scaling.evaluation.conformal import RowInterval, RowRisk, group_weighted_quantile
-from scaling.evaluation.generalisation import LeaveMachineOut, finite_groups, judged_rows, row_kinds
+from scaling.evaluation.generalisation import LeaveMachineOut, finite_groups, judged_rows, row_kinds, row_values
 from scaling.models import load_model
 from scaling.models.fitted import model_groups
 from zoo.product_line import NAME, ProductLineBuild, build_product_line
@@ -98,21 +98,25 @@ def test_served_model_predicts_on_matched_source_rows(built: tuple[Path, Path, P
     np.testing.assert_allclose(out.delta1, model.predict(pairs), rtol=1e-5)
     np.testing.assert_allclose(out.force, pairs.recover(model.predict(pairs)), rtol=1e-5)
     assert np.all(out.lower <= out.force) and np.all(out.force <= out.upper)
-    # the served risk: the card's error score on the model's own features, |ln δ1| and the at-rest rows
+    # the served risk: the card's error score on the model's own features, |ln δ1|, the at-rest rows and the tilt
+    # load, each computed here from the judge's side (the pairs, and the target rows they came from)
     card = zoo.card(path)
     risk = RowRisk.from_state(card["risk"], load_file(str(path / card["risk"]["file"]))["novelty_rows"])
     static = row_kinds(pairs, tgt) == "static"
+    load = row_values(pairs, tgt, tgt["tilt_load"].to_numpy(float))
     assert out.risk is not None and np.all((out.risk >= 0) & (out.risk <= 1))
-    np.testing.assert_allclose(out.risk, risk.risk(model.features(pairs), model.predict_log(pairs), static),
+    np.testing.assert_allclose(out.risk, risk.risk(model.features(pairs), model.predict_log(pairs), static, load),
                                rtol=1e-6, atol=1e-9)
     # the served interval: ln δ1 ± q·s(x) on the same features, F21 = F21_linkage·π1(source)/δ1
     assert out.interval_method == card["interval"]["method"] == "learned-scale"
     half = RowInterval.from_state(card["interval"]["learned_scale"]).half_width(
-        RowRisk.features(risk.novelty, model.features(pairs), model.predict_log(pairs), static), 0.9)
+        RowRisk.features(risk.novelty, model.features(pairs), model.predict_log(pairs), static, load), 0.9)
     np.testing.assert_allclose(out.lower, pairs.recover(model.predict(pairs) * np.exp(half)), rtol=1e-5)
     np.testing.assert_allclose(out.upper, pairs.recover(model.predict(pairs) * np.exp(-half)), rtol=1e-5)
     with pytest.raises(ValueError, match="F21_linkage"):
         served.scale_force(source, tgt.drop(columns=["F21_linkage"]))
+    with pytest.raises(ValueError, match="tilt_load"):  # the error score needs it, though δ1 does not
+        served.scale_force(source, tgt.drop(columns=["tilt_load"]))
 
 
 @pytest.mark.slow
@@ -171,7 +175,7 @@ def test_predict_command_pairs_rows_for_a_product_line_model(built: tuple[Path, 
     tgt = frame[frame["machine"] == "pl1-0"].reset_index(drop=True)
     tgt = tgt[judged_rows(tgt)].reset_index(drop=True)
     ok = finite_groups(tgt, (*groups, PI1_LINKAGE))
-    tgt = tgt[ok].reset_index(drop=True)[[c for c in keep if c != "F21"]]
+    tgt = tgt[ok].reset_index(drop=True)[["kind", *dict.fromkeys([*served.target_variables, *keep[-3:]])]]
     src.to_csv(tmp_path / "src.csv", index=False)
     tgt.to_csv(tmp_path / "tgt.csv", index=False)
     assert main(["predict", "--model", str(path), "--source", str(tmp_path / "src.csv"), "--target",
@@ -244,7 +248,7 @@ def test_predict_command_takes_one_source_per_calibrated_machine(built: tuple[Pa
     frame = cfg.layout.load(cfg.data_dir, executor="serial", progress=False)
     groups = model_groups(served.model)[1]
     keep = ["kind", *dict.fromkeys([*served.source_variables, "boom_angle", "bucket_pitch", "fill"])]
-    tgt = _judged_target(frame, "mini", groups)[[c for c in keep if c != "F21"]]
+    tgt = _judged_target(frame, "mini", groups)[["kind", *dict.fromkeys([*served.target_variables, *keep[-3:]])]]
     tgt.to_csv(tmp_path / "tgt.csv", index=False)
     files, matched = [], []
     for name in cfg.layout.split().train[:3]:

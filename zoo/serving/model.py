@@ -63,13 +63,15 @@ if TYPE_CHECKING:
     from zoo.serving.stream import Prediction, Stream
 
 
-def served_variables(output: PiGroup, inputs: Sequence[PiGroup], variable: str) -> tuple[tuple[str, ...],
-                                                                                        tuple[str, ...]]:
+def served_variables(output: PiGroup, inputs: Sequence[PiGroup], variable: str, *, risk: bool = False
+                     ) -> tuple[tuple[str, ...], tuple[str, ...]]:
     """(source variables, target variables) of a model: every variable of its groups, the scaled ``variable``
-    (e.g. F21) only on the source side; the target order is the order of :meth:`ScalingModel.predict_row`."""
+    (e.g. F21) only on the source side, and on the target side, for a checkpoint with an error score (``risk``),
+    what its features read besides (:attr:`RowRisk.VARIABLES <scaling.evaluation.conformal.RowRisk.VARIABLES>`);
+    the target order is the order of :meth:`ScalingModel.predict_row`."""
     source = tuple(dict.fromkeys(v for g in (output, *inputs) for v in g.variables))
-    target = tuple(dict.fromkeys(v for g in (*inputs, output) for v in g.variables if v != variable))
-    return source, target
+    target = [v for g in (*inputs, output) for v in g.variables if v != variable]
+    return source, tuple(dict.fromkeys([*target, *(RowRisk.VARIABLES if risk else ())]))
 
 
 def _bounds(force: np.ndarray, half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -149,7 +151,8 @@ class ScalingModel:
         self.unit = str(card["predicts"]["unit"])
         self._inv_exp = 1.0 / float(exponent)
         rest = {k: e for k, e in output.exponents.items() if k != self.variable}
-        self.source_variables, self.target_variables = served_variables(output, inputs, self.variable)
+        self.source_variables, self.target_variables = served_variables(output, inputs, self.variable,
+                                                                         risk=risk is not None)
         rest_group = PiGroup(rest) if rest else PiGroup({self.target_variables[0]: Fraction(1)})  # unused if no rest
         self._plan_t = GroupPlan.build([*inputs, rest_group], self.target_variables)
         self._has_rest = bool(rest)
@@ -438,15 +441,15 @@ class ScalingModel:
 
     def _risk_features(self, x: np.ndarray, delta: np.ndarray) -> np.ndarray:
         """The served features of every row (:meth:`scaling.evaluation.conformal.RowRisk.features`): the novelty of its
-        features g, |ln δ1| and whether the bucket is at rest (:func:`scaling.evaluation.metrics.at_rest` on the
-        target's F31, m_b, x_b, a1 and α1; moving when the model does not take them)."""
+        features g, |ln δ1|, whether the bucket is at rest (:func:`scaling.evaluation.metrics.at_rest` on the
+        target's F31, m_b, x_b, a1 and α1; moving when the model does not take them) and its tilt load."""
         assert self.risk is not None
         g = np.concatenate([self._features_of(x[s:s + CHUNK], s)[0] for s in range(0, len(x), CHUNK)])
         col = {v: i for i, v in enumerate(self.target_variables)}
         needed = ("F31", "m_b", "x_b", "a1", "alpha1")
         static = (at_rest(pd.DataFrame({v: x[:, col[v]] for v in needed})) if all(v in col for v in needed)
                   else np.zeros(len(x), dtype=bool))
-        return RowRisk.features(self.risk.novelty, g, np.log(delta), static)
+        return RowRisk.features(self.risk.novelty, g, np.log(delta), static, x[:, col["tilt_load"]])
 
     def _chunk(self, x: np.ndarray, start: int, spread: tuple[float, float, float]) -> tuple[np.ndarray, ...]:
         """:meth:`_finish` of feed-forward rows ``start:start + CHUNK``."""
