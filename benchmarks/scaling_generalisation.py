@@ -99,8 +99,9 @@ def main() -> None:
             "extrapolation": result.extrapolation, "quick": args.quick,
             "relief_share": relief_share(frame, split.specs).round(3).to_dict()}
     out.with_suffix(".json").write_text(json.dumps(meta, indent=1, default=str))
-    out.with_suffix(".md").write_text(report(table, meta))
-    print(report(table, meta))
+    text = report(pd.read_csv(out.with_suffix(".csv")), meta)  # from the file, so that --render gives the same
+    out.with_suffix(".md").write_text(text)
+    print(text)
 
 
 def report(table: pd.DataFrame, meta: dict) -> str:
@@ -181,7 +182,8 @@ def report(table: pd.DataFrame, meta: dict) -> str:
                      f"{fmt(ex['auroc_ensemble_spread'].get(name))} |")
     lines += ["", "Served risk (`scaling.evaluation.conformal.RowRisk`, what a checkpoint such as `statics-pl` "
               "computes per row): the same kind of score on what a served model knows, the novelty of its feature "
-              "row, |ln δ1| and whether the bucket is at rest."]
+              "row, |ln δ1|, whether the bucket is at rest and the tilt load (the tilt cylinder's loaded-chamber "
+              "pressure over its relief pressure; the served interval's scale reads the first three only)."]
     lines += ["", "## Every test machine", "",
               "| machine | model | source | dynamic MAPE / median [%] | static MAPE / median [%] | peak [%] | "
               "coverage: learned / spread / served | rows > 10 % off |", "|---|---|---|---|---|---|---|---|"]
