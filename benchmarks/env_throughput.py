@@ -1,13 +1,28 @@
-"""Physics throughput of WheelLoaderDig-v0: raw ``mj_step`` on the env's own model vs ``env.step``.
+"""Physics throughput of WheelLoaderDig-v0: raw ``mj_step`` on the env's own model vs ``env.step``, side by side.
 
-Both are measured side by side in one run, on the same model, over the same scripted dig cycle: the raw loop
-restarts from the env's own state at every control step and runs the same physics steps with no soil update,
-signals or Python in between. Also reports the real-time factor (simulated seconds per wall second) of a full
-scripted cycle at each preset, and the bound ``mj_step`` alone puts on it (timestep × raw steps per second).
+**Ratio.** Every control step of a scripted dig is timed three ways, one right after the other: ``env.step`` of an
+env without the second route to the pin forces (what ``gym.make`` gives when nothing records the episode),
+``env.step`` of a twin env with it (``two_route_check=True``: what a recording costs), and raw ``mj_step`` of the
+same number of physics steps from the same state (the env's full integration state before its step, set on a
+separate ``MjData`` of the same model: load, soil dampers and controls as the env had them; no soil update,
+signals or Python in between). The twin gets the same commands: route 2 is a passive check, so both envs follow
+the same trajectory bit for bit (checked). The episode is repeated and each step keeps its fastest time over the
+repeats (the same work every time; a busy machine only ever slows a step down), so the three columns see the
+same load at the scale of a millisecond, which the 2 shared cores this runs on need.
+
+**Real-time factor.** Simulated seconds per wall second of the scripted dig: its reset, policy calls and
+``env.step`` calls, each at its fastest over the repeats (for the env as ``gym.make`` gives it, and with route 2);
+and of one whole dig timed end to end (``rollout.run_episode``), fastest repeat, which the machine's load slows
+down as a whole. The bound is ``mj_step`` alone (timestep × raw steps per second).
+
+**Timestep convergence.** Why the physics timestep stays Froude-scaled (1 ms × √λ), which bounds the mini's
+real-time factor: F21 of the scripted dig at the timestep × 1/2 and × 2 (control step, soil refresh period and
+constraint time constant unchanged in seconds), the Froude run's commands replayed open loop, against the Froude
+run; mean absolute percentage difference over the dig rows (penetrate, curl, lift). A timestep may be called a
+numerical choice only where it moves F21 by < 1 % (``tests/envs/test_env_speed.py``).
 
 ``--baseline DIR`` also measures another checkout of ``scaletwin_envs`` (e.g. ``git archive REV scaletwin_envs |
-tar -x -C DIR``) in the same run: every repeat measures each tree in turn, in fresh processes, so both see the same
-machine load; the best of the repeats is reported (a busy machine only ever slows a run down).
+tar -x -C DIR``) in the same run: every repeat measures each tree in turn, in fresh processes.
 
 Run: ``python benchmarks/env_throughput.py [--repeats N] [--baseline DIR] [--out FILE]`` (default FILE:
 ``benchmarks/results/env_throughput.md``).
@@ -27,10 +42,12 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 SCALES = ("mini", "er12", "wa475")
+DIG_PHASES = ("penetrate", "curl", "lift")  # rows over which the timestep convergence is scored
+TIMESTEP_FACTORS = (0.5, 2.0)
 
 
-def measure(scale: str) -> dict[str, float]:
-    """One measurement of every rate at ``scale`` in this process (imports the scaletwin_envs first on sys.path)."""
+def measure(scale: str, repeats: int) -> dict[str, float]:
+    """Every rate at ``scale`` in this process (imports the scaletwin_envs first on sys.path)."""
     import gymnasium as gym
     import mujoco
     import numpy as np
@@ -39,70 +56,148 @@ def measure(scale: str) -> dict[str, float]:
     from scaletwin_envs.policies import ScriptedDigPolicy
     from scaletwin_envs.rollout import run_episode
 
-    def env_rate(two_routes: bool) -> tuple[float, float, float]:
-        """Physics steps per second through env.step, real-time factor, timestep (s), over one scripted cycle."""
-        env = gym.make(scaletwin_envs.ENV_ID, scale=scale, two_route_check=two_routes)
-        env.reset(seed=0)
+    spec = mujoco.mjtState.mjSTATE_INTEGRATION
+    best: list[list[float]] | None = None
+    n_steps = 0
+    for rep in range(repeats):
+        fast = gym.make(scaletwin_envs.ENV_ID, scale=scale, two_route_check=False)
+        full = gym.make(scaletwin_envs.ENV_ID, scale=scale, two_route_check=True)
+        u = fast.unwrapped
+        model, raw = u.model, mujoco.MjData(u.model)
+        state = np.empty(mujoco.mj_stateSize(model, spec))
+        policy = ScriptedDigPolicy()
         start = time.perf_counter()
-        ep = run_episode(env, ScriptedDigPolicy(), seed=0)
-        wall = time.perf_counter() - start
-        u = env.unwrapped
-        return len(ep.infos) * u.frame_skip / wall, ep.infos[-1]["time"] / wall, float(u.model.opt.timestep)
-
-    def raw_rate() -> float:
-        """Raw mj_step rate on the env's own model over the same dig: from the full integration state at the start
-        of every control step of a scripted cycle (load, soil dampers and controls as the env had them), step the
-        physics alone for one control step's worth of steps. Only stepping is timed."""
-        env = gym.make(scaletwin_envs.ENV_ID, scale=scale)
-        u = env.unwrapped
-        m, d = u.model, u.data
-        spec = mujoco.mjtState.mjSTATE_INTEGRATION
-        snapshots: list[tuple[np.ndarray, np.ndarray]] = []
-
-        def snap(_step: int, _action: np.ndarray, _info: dict) -> None:
-            state = np.empty(mujoco.mj_stateSize(m, spec))
-            mujoco.mj_getState(m, d, state, spec)
-            snapshots.append((state, m.tendon_damping.copy()))
-
-        run_episode(env, ScriptedDigPolicy(), seed=0, on_step=snap)
-        elapsed = 0.0
-        for state, damping in snapshots:
-            mujoco.mj_setState(m, d, state, spec)
-            m.tendon_damping[:] = damping
+        obs, _ = fast.reset(seed=0)
+        reset = time.perf_counter() - start
+        obs_full, _ = full.reset(seed=0)
+        times: list[list[float]] = [[0.0, 0.0, 0.0, reset]]  # row 0: the reset (of the route-1 env)
+        done = False
+        while not done:
             start = time.perf_counter()
-            mujoco.mj_step(m, d, u.frame_skip)
-            elapsed += time.perf_counter() - start
-        return len(snapshots) * u.frame_skip / elapsed
+            action = policy.act(obs)
+            t: list[float] = [0.0, 0.0, 0.0, time.perf_counter() - start]  # fast, full, raw, policy
+            mujoco.mj_getState(model, u.data, state, spec)
+            for k in ((0, 1, 2), (1, 2, 0), (2, 0, 1))[len(times) % 3]:  # rotate the order step by step
+                start = time.perf_counter()
+                if k == 0:
+                    obs, _, term, trunc, _ = fast.step(action)
+                elif k == 1:
+                    obs_full, *_ = full.step(action)
+                else:
+                    mujoco.mj_setState(model, raw, state, spec)
+                    start = time.perf_counter()
+                    mujoco.mj_step(model, raw, u.frame_skip)
+                t[k] = time.perf_counter() - start
+            if not np.array_equal(obs, obs_full):
+                raise RuntimeError(f"{scale}: route 2 changed the trajectory at step {len(times)}")
+            times.append(t)
+            done = term or trunc
+        if best is None:
+            best, n_steps = times, len(times)
+        elif len(times) != n_steps:
+            raise RuntimeError(f"{scale}: repeat {rep} ran {len(times)} steps, the first {n_steps}")
+        else:
+            best = [[min(a, b) for a, b in zip(x, y, strict=True)] for x, y in zip(best, times, strict=True)]
+    assert best is not None
+    t_fast, t_full, t_raw, t_other = (sum(row[k] for row in best) for k in range(4))  # t_other: reset + policy
+    physics_steps = (n_steps - 1) * fast.unwrapped.frame_skip
+    timestep = float(model.opt.timestep)
+    simulated = physics_steps * timestep
 
-    env, rtf, timestep = env_rate(True)
-    fast = env_rate(False)[0]
-    raw = raw_rate()
-    return {"env": env, "rtf": rtf, "fast": fast, "raw": raw, "timestep": timestep}
+    def rtf(two_routes: bool) -> float:
+        """Real-time factor of the fastest of ``repeats`` whole scripted digs."""
+        env = gym.make(scaletwin_envs.ENV_ID, scale=scale, two_route_check=two_routes)
+        fastest, sim = float("inf"), 0.0
+        for _ in range(repeats):
+            start = time.perf_counter()
+            ep = run_episode(env, ScriptedDigPolicy(), seed=0)
+            fastest = min(fastest, time.perf_counter() - start)
+            sim = ep.infos[-1]["time"]
+        return sim / fastest
+
+    return {"raw": physics_steps / t_raw, "fast": physics_steps / t_fast, "full": physics_steps / t_full,
+            "rtf_fast": simulated / (t_fast + t_other), "rtf_full": simulated / (t_full + t_other),
+            "rtf_whole": rtf(False), "timestep": timestep, "steps": n_steps - 1}
 
 
-def measure_in_subprocess(tree: Path, scale: str) -> dict[str, float]:
-    """:func:`measure` in a fresh interpreter with ``tree`` first on sys.path (its scaletwin_envs is measured)."""
+def _env_at(scale: str, factor: float):  # -> gymnasium.Env (gymnasium is imported lazily)
+    """The dig env with the physics timestep × ``factor``: frame_skip and the soil refresh count scaled so the
+    control step and the soil refresh period stay the same in seconds, the constraint time constant kept."""
+    import gymnasium as gym
+
+    import scaletwin_envs
+    from scaletwin_envs import builder
+    from scaletwin_envs.envs import loader_base
+
+    froude = builder.BuildOptions.for_spec
+
+    def for_spec(spec: object) -> builder.BuildOptions:
+        o = froude(spec)
+        return builder.BuildOptions(o.timestep * factor, o.constraint_timeconst, o.constraint_width)
+
+    loader_base.BuildOptions.for_spec = for_spec  # the env reads it at construction only
+    try:
+        return gym.make(scaletwin_envs.ENV_ID, scale=scale, frame_skip=round(100 / factor),
+                        external_force_substeps=round(20 / factor))
+    finally:
+        loader_base.BuildOptions.for_spec = froude
+
+
+def convergence(scale: str) -> dict[str, float]:
+    """F21 MAPE (%) and median relative difference (%) over the dig rows at each of :data:`TIMESTEP_FACTORS`
+    against the Froude timestep, commands replayed open loop."""
+    import numpy as np
+
+    from scaletwin_envs.policies import ScriptedDigPolicy
+    from scaletwin_envs.rollout import run_episode
+
+    ref = run_episode(_env_at(scale, 1.0), ScriptedDigPolicy(), seed=0)
+    rows = [k for k, info in enumerate(ref.infos) if info["phase"] in DIG_PHASES]
+    f21 = ref.signal("F21")[rows]
+    out: dict[str, float] = {"peak_F21": float(np.abs(f21).max())}
+    for factor in TIMESTEP_FACTORS:
+        env = _env_at(scale, factor)
+        env.reset(seed=0)
+        other = np.array([env.step(a)[4]["signals"]["F21"] for a in ref.actions])[rows]
+        rel = np.abs(other - f21) / np.abs(f21)
+        out[f"mape_{factor}"] = float(rel.mean() * 100)
+        out[f"median_{factor}"] = float(np.median(rel) * 100)
+    return out
+
+
+def in_subprocess(tree: Path, call: str) -> dict[str, float]:
+    """``env_throughput.<call>`` in a fresh interpreter with ``tree`` first on sys.path (its scaletwin_envs)."""
     code = (f"import sys, json; sys.path.insert(0, {str(tree)!r}); sys.path.insert(1, {str(ROOT / 'benchmarks')!r}); "
             f"import scaletwin_envs; assert scaletwin_envs.__file__.startswith({str(tree)!r}), "
-            f"scaletwin_envs.__file__; import env_throughput; print(json.dumps(env_throughput.measure({scale!r})))")
+            f"scaletwin_envs.__file__; import env_throughput; print(json.dumps(env_throughput.{call}))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=tree)
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+def table(results: dict[str, dict[str, float]]) -> list[str]:
+    lines = ["| preset | timestep [ms] | raw mj_step [steps/s] | env.step [physics steps/s] | ratio | env.step with "
+             "route 2 | ratio | real-time factor | with route 2 | whole dig, fastest repeat | bound: mj_step alone |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for scale, b in results.items():
+        lines.append(f"| {scale} | {b['timestep'] * 1e3:.3f} | {b['raw']:,.0f} | {b['fast']:,.0f} | "
+                     f"{b['fast'] / b['raw']:.2f} | {b['full']:,.0f} | {b['full'] / b['raw']:.2f} | "
+                     f"{b['rtf_fast']:.0f} | {b['rtf_full']:.0f} | {b['rtf_whole']:.0f} | "
+                     f"{b['raw'] * b['timestep']:.0f} |")
+    return lines
 
 
-def table(best: dict[str, dict[str, float]]) -> list[str]:
-    lines = ["| preset | raw mj_step [steps/s] | env.step [physics steps/s] | ratio | env.step, no route-2 | ratio "
-             "| real-time factor | bound: mj_step alone |", "|---|---|---|---|---|---|---|---|"]
-    for scale, b in best.items():
-        lines.append(f"| {scale} | {b['raw']:,.0f} | {b['env']:,.0f} | {b['env'] / b['raw']:.2f} | {b['fast']:,.0f} | "
-                     f"{b['fast'] / b['raw']:.2f} | {b['rtf']:.1f} | {b['raw'] * b['timestep']:.1f} |")
+def convergence_table(conv: dict[str, dict[str, float]]) -> list[str]:
+    lines = ["| preset | peak F21 [N] | F21 MAPE, timestep × 1/2 | median | F21 MAPE, timestep × 2 | median |",
+             "|---|---|---|---|---|---|"]
+    for scale, c in conv.items():
+        lines.append(f"| {scale} | {c['peak_F21']:,.0f} | {c['mape_0.5']:.2f} % | {c['median_0.5']:.2f} % | "
+                     f"{c['mape_2.0']:.2f} % | {c['median_2.0']:.2f} % |")
     return lines
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--repeats", type=int, default=10, help="episodes per measurement (fastest kept)")
     ap.add_argument("--baseline", type=Path, default=None, help="another checkout's root, measured side by side")
     ap.add_argument("--baseline-label", default="baseline")
     ap.add_argument("--out", default="benchmarks/results/env_throughput.md")
@@ -116,27 +211,32 @@ def main() -> None:
         trees[args.baseline_label] = args.baseline.resolve()
     load_before = os.getloadavg()
     started = dt.datetime.now(dt.UTC)
-    best = {label: {s: dict.fromkeys(("env", "fast", "raw", "rtf", "timestep"), 0.0) for s in SCALES}
-            for label in trees}
-    for _ in range(args.repeats):
-        for scale in SCALES:
-            for label, tree in trees.items():  # each tree in turn: both see the same load
-                r = measure_in_subprocess(tree, scale)
-                b = best[label][scale]
-                for key in ("env", "fast", "raw", "rtf"):
-                    b[key] = max(b[key], r[key])
-                b["timestep"] = r["timestep"]
+    results: dict[str, dict[str, dict[str, float]]] = {label: {} for label in trees}
+    for scale in SCALES:
+        for label, tree in trees.items():  # each tree in turn: both see the same load
+            results[label][scale] = in_subprocess(tree, f"measure({scale!r}, {args.repeats})")
+    conv = {scale: in_subprocess(ROOT, f"convergence({scale!r})") for scale in SCALES}
     load_after = os.getloadavg()
     minutes = (dt.datetime.now(dt.UTC) - started).total_seconds() / 60
     lines = [f"# env_throughput ({started:%Y-%m-%d %H:%M} UTC, {host_line()}, python {platform.python_version()}, "
              f"mujoco {mujoco.__version__}, git {git_revision()})", "",
              f"Load average (1/5/15 min) {load_before[0]:.2f}/{load_before[1]:.2f}/{load_before[2]:.2f} before, "
-             f"{load_after[0]:.2f}/{load_after[1]:.2f}/{load_after[2]:.2f} after; {args.repeats} repeats, best of "
-             f"each, {minutes:.1f} min. Ratios are env.step over raw mj_step measured in the same process.", ""]
-    for label, per_scale in best.items():
+             f"{load_after[0]:.2f}/{load_after[1]:.2f}/{load_after[2]:.2f} after; {args.repeats} repeats, "
+             f"{minutes:.1f} min. Per control step, env.step (route 1 only, as `gym.make` gives it unless a recorder "
+             "watches), env.step with route 2 (`two_route_check=True`, what a recording costs) and raw mj_step of "
+             "the same physics steps from the same state run back to back; each step keeps its fastest time over "
+             "the repeats. Real-time factor: simulated time of the scripted dig over its reset, policy and env.step "
+             "times (each at its fastest); also measured as one whole dig (`rollout.run_episode`, fastest repeat), "
+             "which a loaded machine slows down.", ""]
+    for label, per_scale in results.items():
         if len(trees) > 1:
             lines += [f"## {label}" + (f" ({trees[label]})" if label != "this tree" else ""), ""]
         lines += [*table(per_scale), ""]
+    lines += ["## Timestep convergence (this tree)", "",
+              "F21 of the scripted dig at the physics timestep × 1/2 and × 2 (control step, soil refresh and "
+              "constraint time constant unchanged in seconds; the Froude run's commands replayed open loop) against "
+              "the Froude timestep (1 ms × √λ), over the dig rows (penetrate, curl, lift). A larger timestep would be "
+              "a numerical choice only if it moved F21 by < 1 %.", "", *convergence_table(conv), ""]
     text = "\n".join(lines) + "\n"
     print(text)
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)

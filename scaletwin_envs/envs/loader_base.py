@@ -234,7 +234,7 @@ class LoaderEnv(MujocoEnv):
     def cylinder_state(self, which: str) -> tuple[float, float]:
         """Extension from fully retracted (m) and speed (m/s) of ``"lift"`` or ``"tilt"``."""
         qpos_adr, dof, lower = self._slide_adr[which]
-        return (float(self.data.qpos[qpos_adr] - lower), float(self.data.qvel[dof]))
+        return self.data.qpos.item(qpos_adr) - lower, self.data.qvel.item(dof)
 
     # -- hooks -------------------------------------------------------------------------------------------
     def _apply_external_forces(self) -> None:
@@ -245,4 +245,4 @@ class LoaderEnv(MujocoEnv):
 
     @staticmethod
     def _finite(values: Mapping[str, float]) -> bool:
-        return all(math.isfinite(v) for v in values.values())
+        return all(map(math.isfinite, values.values()))

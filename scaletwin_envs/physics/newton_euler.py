@@ -96,8 +96,8 @@ class LinkageSystem:
         self._entries()
 
     def _entries(self) -> None:
-        """Flat indices into the system matrix of its position-dependent entries, in the order
-        :meth:`solve_vector` computes them: per pin end (child, then parent) the moment row's x and z columns; per
+        """Flat indices into the system matrix of its position-dependent entries, in the order :meth:`assemble` and
+        :meth:`solve_floats` compute them: per pin end (child, then parent) the moment row's x and z columns; per
         slide end (rod, then barrel) and direction (axis, normal) the x, z and moment rows."""
         nu = self.n_unknown
         b, col = self._pin_body, self._pin_col
@@ -182,7 +182,7 @@ class LinkageSystem:
 def _solve(a: np.ndarray, rhs: np.ndarray) -> np.ndarray:
     """``a x = rhs`` by LAPACK's ``dgesv`` (LU with partial pivoting, what ``np.linalg.solve`` calls, without its
     checks and wrapping: a few microseconds less per call); least squares if ``a`` is singular (a locked pose)."""
-    _, _, x, info = _dgesv(a, rhs)  # a C-ordered ``a`` is copied to Fortran order, so it is left intact
+    _, _, x, info = _dgesv(a, rhs)  # overwrite_a and overwrite_b are off: ``a`` and ``rhs`` are left intact
     if info != 0:
         return np.linalg.lstsq(a, rhs, rcond=None)[0]
     return x

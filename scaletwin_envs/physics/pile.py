@@ -66,22 +66,27 @@ class Pile:
         idx = np.arange(first, last + 1)
         if idx.size == 0:
             return idx, np.zeros(0)
+        if self.h[first:last + 1].max() <= min(z for _, z in pts):  # the surface lies below the polygon here
+            return idx, np.zeros(idx.size)
         n = len(pts)
-        edges = [(*pts[k], *pts[(k + 1) % n]) for k in range(n) if abs(pts[(k + 1) % n][0] - pts[k][0]) >= 1e-12]
+        edges = []  # per non-vertical edge: start x, z and its run and rise, m
+        for (x0, z0), (x1, z1) in ((pts[k], pts[(k + 1) % n]) for k in range(n)):
+            if abs(x1 - x0) >= 1e-12:
+                edges.append((x0, z0, x1 - x0, z1 - z0))
         if not edges:
             return idx, np.zeros(idx.size)
-        x0, z0, x1, z1 = np.array(edges).T[:, :, None]  # each (edges, 1)
-        t = (self.x[first:last + 1] - x0) / (x1 - x0)  # (edges, cells): where each edge crosses each cell's line
-        z = z0 + t * (z1 - z0)
+        x0, z0, run, rise = np.array(edges).T[:, :, None]  # each (edges, 1)
+        t = (self.x[first:last + 1] - x0) / run  # (edges, cells): where each edge crosses each cell's line
+        z = z0 + t * rise
         crosses = (t >= 0.0) & (t <= 1.0)
-        z_lo = np.where(crosses, z, np.inf).min(axis=0)
-        z_hi = np.where(crosses, z, -np.inf).max(axis=0)
+        z_lo = np.minimum.reduce(z, axis=0, initial=np.inf, where=crosses)
+        z_hi = np.maximum.reduce(z, axis=0, initial=-np.inf, where=crosses)
         # a line that misses the polygon has z_lo = +inf or z_hi = -inf, so its material above z_lo is -inf: none
         return idx, np.maximum(np.minimum(self.h[first:last + 1], z_hi) - z_lo, 0.0)
 
     def remove(self, idx: np.ndarray, heights: np.ndarray) -> float:
         """Take material from columns (the material above slides down); returns the volume removed, m³."""
-        self.h[idx] = (self.h[idx] - heights).clip(min=0.0)
+        self.h[idx] = np.maximum(self.h[idx] - heights, 0.0)  # what clip(min=0) computes, without its wrapper
         return float(heights.sum() * self.dx * self.width)
 
     def reshaped(self) -> None:
