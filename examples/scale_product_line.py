@@ -74,9 +74,11 @@ def main() -> None:
     print(f"{len(tgt)} rows: F21 error median {100 * np.median(err):.1f} %, mean {100 * np.mean(err):.1f} %, "
           f"max {100 * err.max():.1f} %; the 90 % interval covers {100 * np.mean((truth >= lo) & (truth <= hi)):.0f} %"
           f" of rows")
-    print(f"error score: {int(warned.sum())} rows warned as likely more than 10 % off (their mean error "
-          f"{100 * err[warned].mean() if warned.any() else float('nan'):.1f} %, the other rows' "
-          f"{100 * err[~warned].mean():.1f} %)")
+    if warned.any():
+        print(f"error score: {int(warned.sum())} rows warned as likely more than 10 % off (their mean error "
+              f"{100 * err[warned].mean():.1f} %, the other rows' {100 * err[~warned].mean():.1f} %)")
+    else:
+        print("error score: no row warned as likely more than 10 % off")
 
 if __name__ == "__main__":
     main()
