@@ -178,9 +178,8 @@ class LoaderEnv(MujocoEnv):
         values = a.tolist()  # three Python floats: cheaper to check and clip than numpy calls on three elements
         if not all(map(math.isfinite, values)):
             raise ValueError(f"action must be finite, got {values}")
-        clipped = [min(max(v, -1.0), 1.0) for v in values]
-        self.action_clipped = clipped != values
-        return np.array(clipped)
+        self.action_clipped = not (min(values) >= -1.0 and max(values) <= 1.0)
+        return np.array([min(max(v, -1.0), 1.0) for v in values] if self.action_clipped else values)
 
     def _command_to_ctrl(self, a: np.ndarray) -> np.ndarray:
         lift, tilt, drive = a.tolist()

@@ -419,8 +419,8 @@ class WheelLoaderDigEnv(LoaderEnv):
             self._t / self._time_limit,
             self.dig.spilled_volume / self.dig.capacity, (float(self._qpos[0]) - self._start_x) / L,
         ]
-        if all(map(math.isfinite, values)):  # the usual case: clip as Python floats, one conversion to float32
-            return np.array([min(max(v, -OBS_LIMIT), OBS_LIMIT) for v in values], dtype=np.float32)
+        if all(map(math.isfinite, values)) and min(values) >= -OBS_LIMIT and max(values) <= OBS_LIMIT:
+            return np.array(values, dtype=np.float32)  # the usual case: nothing to clip, one conversion
         obs = np.nan_to_num(np.asarray(values, dtype=np.float64), nan=0.0, posinf=OBS_LIMIT, neginf=-OBS_LIMIT)
         return np.clip(obs, -OBS_LIMIT, OBS_LIMIT).astype(np.float32)
 
