@@ -18,7 +18,7 @@ Gymnasium conventions every loader shares:
   ``None`` (the default) only while a recorder watches the env (:class:`~scaletwin_envs.recording.recorder.
   EpisodeRecorder`, :class:`~scaletwin_envs.recording.rerun_log.RerunLogger`, which call
   :meth:`LoaderEnv.request_two_route_check`), so recordings, sweeps and replays carry both routes while plain
-  stepping (training, rollouts) skips the solve (about a fifth of the env's own time per step);
+  stepping (training, rollouts) skips the solve (a quarter of the env's own time per step, 6 % of ``env.step``);
 * ``render_mode="human"`` needs a display: without one (Linux without ``DISPLAY``/``WAYLAND_DISPLAY``, or
   ``MUJOCO_GL=egl``/``osmesa``) the constructor raises ``ValueError`` instead of the GL library aborting the
   process, and ``"human"`` is left out of the instance's ``metadata["render_modes"]`` (so gymnasium's

@@ -44,7 +44,7 @@ Version history:
     ``None``: the second route to the pin forces (``*_route2``, ``residual_*`` signals) is computed while a
     recorder watches the env (``EpisodeRecorder``/``RerunLogger``: recordings, sweeps, replays, ``scaletwin
     simulate --parquet/--rrd``) or every step with ``two_route_check=True``; a plain ``gym.make`` no longer
-    solves it on every step (it was a fifth of the env's own time per step), and its signals lack those keys, as
+    solves it on every step (a quarter of the env's own time per step), and its signals lack those keys, as
     with ``two_route_check=False`` before. The per-step signals, soil force, fill transfer and observation run
     with less Python overhead, every value bit-identical: ``env.step`` from 0.69–0.71 to 0.82–0.83 of raw
     ``mj_step`` (0.61–0.63 to 0.77–0.78 with route 2; ``benchmarks/results/env_throughput.md``). Signal values

@@ -166,7 +166,9 @@ def test_froude_timestep_is_converged(monkeypatch: pytest.MonkeyPatch, scale: st
 
 def test_minis_timestep_cannot_grow(monkeypatch: pytest.MonkeyPatch) -> None:
     """The mini's timestep (1 ms × √λ = 0.38 ms) bounds its real-time factor (about 60× by ``mj_step`` alone), but
-    a larger one is not justified: doubling it moves F21 over the dig by 12 % (mean absolute), more than ten times
-    the 1 % a numerical choice may cost. (Halving it moves F21 too: the median row by 1 %, the penetration's
-    stalled push by up to 15 %; the mini is the least converged preset, see ``benchmarks/env_throughput.py``.)"""
-    assert timestep_mape(monkeypatch, "mini", 2.0) > 5.0
+    a larger one is not justified: doubling it moves F21 over the dig by 12.5 % (mean absolute; the median row by
+    2.9 %), where a numerical choice may cost 1 %. (Halving it moves F21 too: the median row by 0.9 %, the
+    penetration's stalled push by up to 15 %; the mini is the least converged preset, see
+    ``benchmarks/env_throughput.py``.) The bound leaves room for round-off differences between processors, which
+    can shift the late, event-driven rows of the replay."""
+    assert timestep_mape(monkeypatch, "mini", 2.0) > 2.0
