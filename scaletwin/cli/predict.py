@@ -2,6 +2,8 @@
 
     scaletwin predict --model ffnn-eq10 --target wa475.csv [--source er12.parquet] [--out scaled.csv]
     scaletwin predict --model statics-pl-ens --target new.csv --source a.csv --source b.csv --source c.csv
+    scaletwin predict --model statics-pl --target new.csv --target-design new.json
+                      --source er12.csv --source-design er12
 
 Files are CSV or Parquet with ``name [unit]`` headers (any unit pint converts, e.g. ``F31 [kN]``, ``x_b [mm]``) or
 scaletwin recordings. The source is one row of the calibrated machine (``--source-row``, default: the file's only
@@ -9,7 +11,11 @@ row; of a longer recording, the row closest to the model's calibrated reference 
 as ``statics-pl``, every target row's nearest source row in pose and fill) or one row per target row;
 without ``--source`` the model's own calibrated reference row is used. A model calibrated for several sources
 (``statics-pl-ens``: 3) takes ``--source`` once per calibrated machine, each paired row by row with the target, and
-scales from their geometric mean with the interval and error score calibrated for that many. The output holds the
+scales from their geometric mean with the interval and error score calibrated for that many. A product-line model
+reads design signals no sensor gives (``tilt_ratio``, ``fill``, ``F21_linkage``, ``tilt_load``...); files without
+them name each machine's design (``--target-design``, ``--source-design``: a preset, a length ratio, a LoaderSpec
+JSON) and the signals are computed from the pose, cylinder extensions, payload and tilt-cylinder force
+(:func:`scaling.data.product_line.add_design_signals`). The output holds the
 target's ``machine``/``episode``/``t``/``time`` columns (if any) and ``F21 [N]``, ``F21_lower [N]``, ``F21_upper [N]``,
 ``delta1 [1]``, ``extrapolated`` (and ``risk [1]`` where the model serves an error score); it is printed as CSV
 when ``--out`` is not given.
@@ -37,6 +43,7 @@ from scaletwin.cli import CommandError
 if TYPE_CHECKING:
     import pandas as pd
 
+    from scaletwin_envs.specs import LoaderSpec
     from zoo.serving import ScalingModel
 
 KEEP = ("machine", "episode", "t", "time")
@@ -50,6 +57,13 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="source machine's recording (default: the model's calibrated reference row); give it once "
                         "per source machine for a model calibrated for several (statics-pl-ens: 3)")
     p.add_argument("--source-row", type=int, help="row of --source to use for every target row (0-based)")
+    p.add_argument("--target-design", metavar="DESIGN",
+                   help="the target machine's design, to compute its design signals (tilt_ratio, strokes, fill, "
+                        "F21_linkage, tilt_load) from the file's pose, cylinder extensions, m_load and Pf_tilt: a "
+                        "preset (mini, er12, wa475), a length ratio to the ER12 (product-line law), or a JSON "
+                        "file: a LoaderSpec, or `scaletwin product-line`'s machines.json#NAME")
+    p.add_argument("--source-design", metavar="DESIGN", action="append",
+                   help="the same for a source machine, once per --source (in the same order)")
     p.add_argument("--out", help="output .csv or .parquet (default: CSV on stdout)")
     p.add_argument("--coverage", type=float, help="interval level (default: the card's)")
     p.add_argument("--hold", type=int, help="recurrent models: each target row is the machine held still this "
@@ -112,6 +126,82 @@ def read_input(path: str, role: str) -> pd.DataFrame:
     for note in notes:
         print(f"scaletwin predict: warning: {role} {path}: {note}", file=sys.stderr)
     return frame
+
+
+#: What the design signals are computed from (:func:`scaling.data.product_line.add_design_signals`), SI.
+DESIGN_INPUTS = ("boom_angle", "bucket_pitch", "lift_extension", "tilt_extension", "m_load", "Pf_tilt")
+
+
+def design_of(text: str, flag: str) -> LoaderSpec:
+    """The machine design ``text`` names (``flag``: the option, for messages): a preset, a length ratio λ to the
+    ER12 (product-line law), or a JSON file holding a :class:`~scaletwin_envs.specs.LoaderSpec` (its ``to_json``),
+    one product-line machine (``{"spec": ...}``) or ``scaletwin product-line``'s ``machines.json#NAME``.
+
+    Raises:
+        CommandError: nothing of that name, an unreadable file, a JSON that is no design, a bad λ.
+    """
+    import json
+    from pathlib import Path
+
+    from scaletwin_envs.specs import LoaderSpec, make_loader
+    from scaletwin_envs.specs.presets import PRESETS
+
+    if text in PRESETS:
+        return make_loader(text)
+    try:
+        return make_loader(float(text))
+    except ValueError as exc:
+        if not text.lower().endswith(".json") and ".json#" not in text.lower():
+            if re.fullmatch(r"[-+.\deE]+", text):  # a number, out of range
+                raise CommandError(f"{flag} {text}: {exc}") from exc
+            raise CommandError(f"{flag} {text!r}: not a preset ({', '.join(PRESETS)}), a length ratio or a .json "
+                               "design file") from exc
+    path, _, name = text.partition("#")
+    try:
+        doc = json.loads(Path(path).read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise CommandError(f"{flag} {path}: cannot read a JSON design ({' '.join(str(exc).split())})") from exc
+    if isinstance(doc, dict) and isinstance(doc.get("machines"), list):  # scaletwin product-line's machines.json
+        names = [str(m.get("name")) for m in doc["machines"] if isinstance(m, dict)]
+        if name not in names:
+            raise CommandError(f"{flag} {text}: name a machine of the file after '#' (one of "
+                               f"{', '.join(names[:8])}{'...' if len(names) > 8 else ''})")
+        doc = doc["machines"][names.index(name)]
+    if isinstance(doc, dict) and isinstance(doc.get("spec"), dict):
+        doc = doc["spec"]
+    try:
+        return LoaderSpec.from_dict(doc if isinstance(doc, dict) else {})
+    except (ValueError, TypeError) as exc:
+        raise CommandError(f"{flag} {path}: {exc}") from exc
+
+
+def with_design(frame: pd.DataFrame, spec: LoaderSpec, role: str, path: str) -> pd.DataFrame:
+    """``frame`` with the design signals of ``spec`` (:data:`~scaletwin_envs.signal_units.DESIGN_SIGNAL_UNITS`, SI)
+    computed from its :data:`DESIGN_INPUTS` (any units); design columns the file already had are replaced, and
+    a note says so.
+
+    Raises:
+        CommandError: an input missing or unusable, naming the file.
+    """
+    import pandas as pd
+
+    from scaletwin_envs.signal_units import DESIGN_SIGNAL_UNITS
+    from scaling.data.product_line import add_design_signals
+    from zoo.serving import InputError
+    from zoo.serving.inputs import split_header, to_matrix
+
+    try:
+        si = pd.DataFrame(to_matrix(frame, DESIGN_INPUTS, f"{role} (for its design signals)"),
+                          columns=list(DESIGN_INPUTS))
+    except InputError as exc:
+        raise CommandError(f"{role} {path}: {' '.join(str(exc).split())}") from exc
+    design = add_design_signals(si.assign(machine=spec.name), {spec.name: spec})
+    replaced = [c for c in frame.columns if split_header(c)[0] in DESIGN_SIGNAL_UNITS]
+    if replaced:
+        print(f"scaletwin predict: {role} {path}: columns {', '.join(map(str, replaced))} replaced by the design "
+              f"signals of {spec.name}", file=sys.stderr)
+    out = frame.drop(columns=replaced)
+    return out.assign(**{name: design[name].to_numpy(float) for name in DESIGN_SIGNAL_UNITS})
 
 
 def naming_files(exc: Exception, files: Mapping[str, str | None]) -> CommandError:
@@ -192,6 +282,13 @@ def run(args: argparse.Namespace) -> int:
     target = read_input(args.target, "target")
     paths = list(args.source or [])
     sources = [read_input(path, "source") for path in paths]
+    designs = list(args.source_design or [])
+    if designs and len(designs) != len(paths):
+        raise CommandError(f"give --source-design once per --source ({len(paths)}), got {len(designs)}")
+    if args.target_design is not None:
+        target = with_design(target, design_of(args.target_design, "--target-design"), "target", args.target)
+    sources = [with_design(src, design_of(text, "--source-design"), "source", path)
+               for src, text, path in zip(sources, designs, paths, strict=True)] if designs else sources
     files = {"target": args.target, "source": ", ".join(paths) or None}
     try:
         model = zoo.load(args.model)

@@ -194,6 +194,64 @@ def test_predict_command_pairs_rows_for_a_product_line_model(built: tuple[Path, 
     assert "bucket_pitch" in capsys.readouterr().err
 
 
+def test_predict_command_computes_the_design_signals_from_the_designs_named(
+        built: tuple[Path, Path, ProductLineBuild], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A logger's files without design signals, in other units (deg, kN, mm, t): ``--target-design`` (the
+    machine's LoaderSpec JSON, or `scaletwin product-line`'s machines.json#NAME) and ``--source-design`` (a preset)
+    give the same forces and risks as files that carry the signals computed in Python; a design that cannot be
+    read, a missing input and a count of designs that does not match the sources are one-line errors."""
+    from scaletwin.cli import main
+    from scaletwin_envs.signal_units import DESIGN_SIGNAL_UNITS
+
+    path, _, cfg = built
+    served = zoo.load(path)
+    frame = cfg.layout.load(cfg.data_dir, executor="serial", progress=False)
+    specs = cfg.layout.split().specs
+    groups = model_groups(served.model)[1]
+    src = frame[frame["machine"] == "er12"].reset_index(drop=True)
+    tgt = _judged_target(frame, "pl1-0", groups)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", zoo.ExtrapolationWarning)
+        expected = served.scale_force(src.iloc[match_rows(src, tgt)].reset_index(drop=True), tgt)
+
+    def logger_file(rows: pd.DataFrame, name: str) -> Path:
+        """What a data logger writes: the recorded signals only, several not in SI."""
+        out = rows.drop(columns=[c for c in rows.columns if c in DESIGN_SIGNAL_UNITS or c == "machine"])
+        out = out.rename(columns={"boom_angle": "boom_angle [deg]", "Pf_tilt": "Pf_tilt [kN]",
+                                  "tilt_extension": "tilt_extension [mm]", "m_load": "m_load [t]"})
+        out["boom_angle [deg]"] = np.degrees(out["boom_angle [deg]"])
+        out["Pf_tilt [kN]"] /= 1e3
+        out["tilt_extension [mm]"] *= 1e3
+        out["m_load [t]"] /= 1e3
+        out.to_csv(file := tmp_path / name, index=False)
+        return file
+
+    src_file, tgt_file = logger_file(src, "src.csv"), logger_file(tgt, "tgt.csv")
+    (tmp_path / "pl1-0.json").write_text(specs["pl1-0"].to_json())
+    machines = {"machines": [{"name": "pl1-0", "spec": specs["pl1-0"].to_dict()}]}
+    (tmp_path / "machines.json").write_text(json.dumps(machines))
+    for design in (str(tmp_path / "pl1-0.json"), f"{tmp_path / 'machines.json'}#pl1-0"):
+        assert main(["predict", "--model", str(path), "--source", str(src_file), "--source-design", "er12",
+                     "--target", str(tgt_file), "--target-design", design, "--out", str(tmp_path / "out.csv")]) == 0
+        out = pd.read_csv(tmp_path / "out.csv")
+        np.testing.assert_allclose(out["F21 [N]"], expected.force, rtol=1e-9)
+        np.testing.assert_allclose(out["risk [1]"], expected.risk, rtol=1e-9)
+    capsys.readouterr()
+    bad = [(["--target-design", "excavator"], "not a preset"),
+           (["--target-design", f"{tmp_path / 'machines.json'}#pl9-9"], "pl1-0"),
+           (["--target-design", str(tmp_path / "src.csv.json")], "cannot read"),
+           (["--target-design", "er12", "--source-design", "er12", "--source-design", "er12"], "once per --source")]
+    for extra, message in bad:
+        assert main(["predict", "--model", str(path), "--source", str(src_file), "--target", str(tgt_file),
+                     *extra]) == 2
+        assert message in capsys.readouterr().err
+    pd.read_csv(tgt_file).drop(columns=["m_load [t]"]).to_csv(tmp_path / "no_load.csv", index=False)
+    assert main(["predict", "--model", str(path), "--source", str(src_file), "--source-design", "er12",
+                 "--target", str(tmp_path / "no_load.csv"), "--target-design", "er12"]) == 2
+    err = capsys.readouterr().err
+    assert "no_load.csv" in err and "m_load" in err
+
+
 def _judged_target(frame: pd.DataFrame, machine: str, groups: tuple) -> pd.DataFrame:
     tgt = frame[frame["machine"] == machine].reset_index(drop=True)
     tgt = tgt[judged_rows(tgt)].reset_index(drop=True)
