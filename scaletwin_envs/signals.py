@@ -115,16 +115,28 @@ class SignalReader:
         self._drive_dof = int(model.jnt_dofadr[self.ids.joints["drive"]])
         self._f21_row = 0  # first constraint row of link_b_to_bucket at the last read (checked before use)
         self._data: mujoco.MjData | None = None
-        # views of the model's arrays (read at every step, so a model altered after construction is seen)
-        self._body_mass, self._gravity_vec = model.body_mass, model.opt.gravity
-        self._dof_armature, self._dof_damping = model.dof_armature, model.dof_damping
+
+    def __getstate__(self) -> dict:
+        """Pickled or copied without the bound views (a copy's arrays would be detached from its ``MjData``): the
+        copy binds its own at its first read."""
+        state = dict(self.__dict__)
+        state["_data"] = None
+        for name in ("_xipos", "_cvel", "_cacc", "_subtree_com", "_xmat", "_ximat", "_site_xpos", "_cfrc_int",
+                     "_actuator_force", "_xfrc", "_qpos", "_qvel", "_qacc", "_body_mass", "_gravity_vec",
+                     "_dof_armature", "_dof_damping"):
+            state.pop(name, None)
+        return state
 
     def _bind(self, data: mujoco.MjData) -> None:
         """Keep views of the ``data`` arrays read every step (their memory lives as long as ``data``; the
-        constraint arrays ``efc_*`` are re-allocated every step and are never kept)."""
+        constraint arrays ``efc_*`` are re-allocated every step and are never kept) and of the model's (read at
+        every step, so a model altered after construction is seen)."""
         if data is self._data:
             return
         self._data = data
+        model = self.model
+        self._body_mass, self._gravity_vec = model.body_mass, model.opt.gravity
+        self._dof_armature, self._dof_damping = model.dof_armature, model.dof_damping
         self._xipos, self._cvel, self._cacc, self._subtree_com = data.xipos, data.cvel, data.cacc, data.subtree_com
         self._xmat, self._ximat, self._site_xpos, self._cfrc_int = data.xmat, data.ximat, data.site_xpos, data.cfrc_int
         self._actuator_force, self._xfrc = data.actuator_force, data.xfrc_applied

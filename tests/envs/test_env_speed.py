@@ -4,6 +4,7 @@ it is kept (issue 15, ``benchmarks/env_throughput.py``)."""
 
 from __future__ import annotations
 
+import copy
 import math
 
 import gymnasium as gym
@@ -172,3 +173,19 @@ def test_minis_timestep_cannot_grow(monkeypatch: pytest.MonkeyPatch) -> None:
     ``benchmarks/env_throughput.py``.) The bound leaves room for round-off differences between processors, which
     can shift the late, event-driven rows of the replay."""
     assert timestep_mape(monkeypatch, "mini", 2.0) > 2.0
+
+
+def test_signal_reader_copy_reads_its_own_data() -> None:
+    """A deep copy of a reader (with its model) keeps no views of the original's arrays: after the original steps
+    on, the copy still reads the copied state, and sees a change to its own model (the payload's mass)."""
+    env = gym.make(scaletwin_envs.ENV_ID, scale="mini", two_route_check=True)
+    _steps(env, 5)
+    u = env.unwrapped
+    reader, data = u.signal_reader, u.data
+    before = reader.read(data, np.zeros(2))
+    twin, twin_data = copy.deepcopy(reader), copy.deepcopy(data)
+    _steps(env, 3)  # the original moves on
+    assert twin.read(twin_data, np.zeros(2)) == before
+    payload = twin.model.body("payload").id
+    twin.model.body_mass[payload] += 1.0
+    assert twin.read(twin_data, np.zeros(2))["m_b"] == pytest.approx(before["m_b"] + 1.0)
