@@ -266,11 +266,12 @@ class WheelLoaderDigEnv(LoaderEnv):
         mujoco.mj_objectVelocity(self.model, self.data, mujoco.mjtObj.mjOBJ_SITE, self._site_ids[0], self._vel6, 0)
         _, _, _, vx, _, vz = self._vel6.tolist()
         f = self.dig.resistance((edge[0], edge[2]), (top[0], top[2]), (heel[0], heel[2]), (vx, vz))
-        speed = math.hypot(vx, vz)
-        damping = f.resist / max(speed, self.dig.creep)
+        speed, creep = math.hypot(vx, vz), self.dig.creep
+        damping = f.resist / (creep if creep > speed else speed)  # max(speed, creep), without the call
         for t in self._damper_ids:
             self._tendon_damping[t] = damping
-        scale = min(1.0, speed / self.dig.creep)
+        scale = speed / creep
+        scale = scale if scale < 1.0 else 1.0
         fx, fz = scale * f.press * f.travel[1], -scale * f.press * f.travel[0]
         com_x, _, com_z = self._xipos[self._bucket].tolist()
         torque_y = (edge[2] - com_z) * fx - (edge[0] - com_x) * fz

@@ -68,8 +68,10 @@ class SoilResistance:
         if depth <= 0.0:
             return 0.0, 0.0
         quad, lin = self.quad, self.lin
-        r = min(max(rake, RAKE_MIN), RAKE_MAX)
-        k = min(int((r - RAKE_MIN) / _RAKE_STEP), len(quad) - 2)
+        r = RAKE_MIN if rake < RAKE_MIN else rake  # the rake clamped to the table: min(max(rake, MIN), MAX)
+        r = RAKE_MAX if r > RAKE_MAX else r
+        k, last = int((r - RAKE_MIN) / _RAKE_STEP), len(quad) - 2
+        k = last if last < k else k
         t = (r - RAKE_MIN) / _RAKE_STEP - k
         p = width * (((1 - t) * quad[k] + t * quad[k + 1]) * depth * depth
                      + ((1 - t) * lin[k] + t * lin[k + 1]) * depth)

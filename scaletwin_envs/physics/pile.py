@@ -38,7 +38,8 @@ class Pile:
         u = (x - self._x0) / self.dx
         if u < 0.0 or u > self._last:
             return 0.0
-        k = min(int(u), self._last - 1)
+        k, top = int(u), self._last - 1
+        k = top if top < k else k
         t = u - k
         return h.item(k) * (1.0 - t) + h.item(k + 1) * t  # Python floats: the same float64 arithmetic, faster
 
