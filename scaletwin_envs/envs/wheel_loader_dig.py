@@ -46,8 +46,9 @@ Version history:
     simulate --parquet/--rrd``) or every step with ``two_route_check=True``; a plain ``gym.make`` no longer
     solves it on every step (a quarter of the env's own time per step), and its signals lack those keys, as
     with ``two_route_check=False`` before. The per-step signals, soil force, fill transfer and observation run
-    with less Python overhead, every value bit-identical: ``env.step`` from 0.69–0.71 to 0.82–0.83 of raw
-    ``mj_step`` (0.61–0.63 to 0.77–0.78 with route 2; ``benchmarks/results/env_throughput.md``). Signal values
+    with less Python overhead, every value bit-identical: ``env.step`` from 0.67–0.69 to 0.82–0.83 of raw
+    ``mj_step`` (0.58–0.61 to 0.75–0.77 with route 2; ``benchmarks/results/env_throughput.md``, side by side on
+    2 shared AVX-512 cores; 0.80–0.83 over five such runs). Signal values
     are plain floats (some were ``np.float64``). The physics timestep stays Froude-scaled (1 ms × √λ): doubling it
     moves the mini's F21 over the dig by 12.5 % (mean absolute), so it is no free numerical choice.
 """
