@@ -16,7 +16,9 @@ Drift
     each channel also gets a random-walk part ``L_t = L_{t-1} + ε_t``, ``ε ~ N(0, drift²)``, zeroed before the
     record's first sample (an offset present from the start is a bias, a change after it is drift), estimated on
     the long time scales (:func:`estimate_drift`): the exact Gaussian likelihood of white + AR(1) + random walk
-    over the whole record (every block length up to the record's), profiled over the drift rate, with the
+    over the whole record (every block length up to the record's), profiled over the drift rate, with the twin's
+    own signal and its rate as free regressors (a restricted likelihood: a gain or delay is not drift, and the
+    part of a walk that resembles the twin's slow signals still counts for its rate), with the
     residual's steps clipped first (a discrepancy's jumps are not drift), and kept only with clear evidence overall
     and none against it in either half of the record (a random walk's increments are stationary, a slow
     discrepancy's are not). The null's noise samples carry the drift, so a drifting channel's wandering level is
@@ -259,6 +261,41 @@ def level_loglik(x: np.ndarray, short: ChannelNoise, q: np.ndarray, zeroed: bool
     return loglik
 
 
+def regression_loglik(x: np.ndarray, short: ChannelNoise, q: np.ndarray, regressors: np.ndarray) -> np.ndarray:
+    """:func:`level_loglik` (diffuse level) of ``x`` (steps,) with free coefficients on ``regressors`` (steps, k)
+    beside the level: their priors diffuse too, so the likelihood is that of what the regressors cannot explain,
+    a restricted likelihood (Harvey 1989, ch. 3.4; REML): a walk's rate estimated by it is not lowered by what the
+    regressors absorb of the walk, and what they explain is not taken for a walk. Kalman filter of the state
+    (AR(1) part, level, coefficients), all ``q`` (signal units², increment variance per step) at once."""
+    white2, rho, c2 = short.white**2, short.rho, short.coloured**2
+    q = np.asarray(q, float)
+    k = regressors.shape[1]
+    m = 2 + k
+    var = max(white2 + c2, 1e-300)
+    power = np.maximum(np.mean(regressors**2, axis=0), 1e-300)
+    p = np.zeros((len(q), m, m))
+    p[:, 0, 0] = c2
+    p[:, 1, 1] = DIFFUSE * var
+    for i in range(k):
+        p[:, 2 + i, 2 + i] = DIFFUSE * var / power[i]
+    a = np.zeros((len(q), m))
+    decay = np.ones(m)
+    decay[0] = rho
+    loglik = np.zeros(len(q))
+    for t, value in enumerate(x):
+        z = np.concatenate([[1.0, 1.0], regressors[t]])
+        pz = p @ z  # (B, m)
+        f = np.maximum(pz @ z + white2, 1e-300)
+        nu = value - a @ z
+        loglik -= 0.5 * (np.log(2.0 * np.pi * f) + nu * nu / f)
+        gain = pz / f[:, None]
+        a = (a + gain * nu[:, None]) * decay
+        p = (p - gain[:, :, None] * pz[:, None, :]) * decay[None, :, None] * decay[None, None, :]
+        p[:, 0, 0] += c2 * (1.0 - rho**2)
+        p[:, 1, 1] += q
+    return loglik
+
+
 def _spectral_misfit(d: np.ndarray, short: ChannelNoise, q: float) -> float:
     """How much worse (Whittle log-likelihood, weighted as in :func:`short_scale`) the median-Welch spectrum of the
     differences ``d`` fits when a random walk of increment variance ``q`` adds its flat spectrum ``q`` to the
@@ -272,7 +309,8 @@ def _spectral_misfit(d: np.ndarray, short: ChannelNoise, q: float) -> float:
     return weight * float(np.sum(np.log(s1) + spectrum / s1 - np.log(s0) - spectrum / s0))
 
 
-def estimate_drift(residual: np.ndarray, short: ChannelNoise) -> tuple[float, float]:
+def estimate_drift(residual: np.ndarray, short: ChannelNoise, twin: np.ndarray | None = None
+                   ) -> tuple[float, float]:
     """Random-walk increment SD per step (signal units; 0: no drift) of one channel beside its short-scale noise
     ``short``, and the log-likelihood gain it brings over no drift.
 
@@ -280,13 +318,36 @@ def estimate_drift(residual: np.ndarray, short: ChannelNoise) -> tuple[float, fl
     discrepancy's steps are not drift; a random walk's increments are Gaussian and pass). The drift rate is the
     best of :data:`DRIFT_GRID` by :func:`level_loglik`; it is kept when it gains :data:`DRIFT_EVIDENCE` over none
     on the whole record, the robust short-scale spectrum accepts it (:func:`_spectral_misfit`) and neither half
-    loses more than −:data:`DRIFT_HALF_EVIDENCE` by it (see the module)."""
-    d = np.diff(residual)
-    if len(d) < MIN_DRIFT_STEPS or not np.all(np.isfinite(d)):
-        return 0.0, 0.0
-    x = np.concatenate([[0.0], np.cumsum(robust_clip(d))])
+    loses more than −:data:`DRIFT_HALF_EVIDENCE` by it (see the module).
+
+    With ``twin`` (steps,; the twin's signal the residual is taken against), the twin's signal and its rate enter
+    as free regressors (:func:`regression_loglik`): a gain or delay on the channel is a discrepancy, not a walk,
+    and a walk that looks partly like the twin's slow signal keeps its full rate (a regression on a ramp took up
+    to half a walk's excursion, so the null drew walks too tame for the record). The steps clipped are those of
+    the residual less its least-squares fit on the twin (a gain on a signal with sharp steps is not clipped)."""
+    if twin is None:
+        d = np.diff(residual)
+        if len(d) < MIN_DRIFT_STEPS or not np.all(np.isfinite(d)):
+            return 0.0, 0.0
+        x = np.concatenate([[0.0], np.cumsum(robust_clip(d))])
+        regs = None
+    else:
+        if len(residual) - 1 < MIN_DRIFT_STEPS or not np.all(np.isfinite(residual)):
+            return 0.0, 0.0
+        design = _design(twin)
+        coef, *_ = np.linalg.lstsq(design, residual, rcond=None)
+        fit = design @ coef
+        d = np.diff(residual - fit)
+        x = fit - fit[0] + np.concatenate([[0.0], np.cumsum(robust_clip(d))])
+        regs = design[:, 1:][:, np.ptp(design[:, 1:], axis=0) > 1e-9]  # a constant twin is the level already
     q = np.concatenate([[0.0], DRIFT_GRID * (short.white**2 + short.coloured**2)])
-    gain = level_loglik(x, short, q)
+
+    def loglik(part: slice, rates: np.ndarray) -> np.ndarray:
+        if regs is None:
+            return level_loglik(x[part], short, rates)
+        return regression_loglik(x[part], short, rates, regs[part])
+
+    gain = loglik(slice(None), q)
     gain = gain[1:] - gain[0]
     best = int(np.argmax(gain))
     if gain[best] < DRIFT_EVIDENCE:
@@ -294,8 +355,8 @@ def estimate_drift(residual: np.ndarray, short: ChannelNoise) -> tuple[float, fl
     if _spectral_misfit(d, short, float(q[best + 1])) > DRIFT_SPECTRUM_TOLERANCE:
         return 0.0, float(gain[best])
     half = len(x) // 2
-    for part in (x[:half], x[half:]):
-        ll = level_loglik(part, short, q[[0, best + 1]])
+    for part in (slice(0, half), slice(half, None)):
+        ll = loglik(part, q[[0, best + 1]])
         if ll[1] - ll[0] < DRIFT_HALF_EVIDENCE:
             return 0.0, float(gain[best])
     return float(np.sqrt(q[best + 1])), float(gain[best])
@@ -325,9 +386,15 @@ def sensor_noise(residual: np.ndarray, spread: np.ndarray, twin: np.ndarray | No
     whitening would then hide the very gain). A random walk common to the channels is then looked for on the
     residual before that removal (:func:`common_drift`: the twin's slow signals absorb a slow walk)."""
     raw = residual
-    if twin is not None:
-        residual = _unexplained_by(residual, twin)
-    channels = [estimate_channel(residual[:, j], NOISE_FLOOR * float(spread[j])) for j in range(residual.shape[1])]
+    if twin is None:
+        channels = [estimate_channel(residual[:, j], NOISE_FLOOR * float(spread[j])) for j in range(residual.shape[1])]
+        return common_drift(raw, channels)
+    residual = _unexplained_by(residual, twin)
+    channels = []
+    for j in range(residual.shape[1]):
+        short = short_scale(residual[:, j], NOISE_FLOOR * float(spread[j]))
+        drift, _ = estimate_drift(raw[:, j], short, np.nan_to_num(twin[:, j]))
+        channels.append(dataclasses.replace(short, drift=drift) if drift > 0.0 else short)
     return common_drift(raw, channels)
 
 
@@ -396,15 +463,20 @@ def common_drift(raw: np.ndarray, channels: list[ChannelNoise]) -> list[ChannelN
     return out
 
 
+def _design(twin: np.ndarray) -> np.ndarray:
+    """(1, twin, d twin / dstep) of one channel's twin signal (steps,), each column scaled to a peak of 1."""
+    x = np.nan_to_num(twin)
+    design = np.stack([np.ones(len(x)), x, np.gradient(x)], axis=1)
+    return design / np.maximum(np.abs(design).max(axis=0), 1e-300)
+
+
 def _unexplained_by(residual: np.ndarray, twin: np.ndarray) -> np.ndarray:
     """Per column, ``residual`` less its least-squares fit on (1, twin, d twin / dstep)."""
     out = residual.copy()
     for j in range(residual.shape[1]):
-        x = np.nan_to_num(twin[:, j])
-        design = np.stack([np.ones(len(x)), x, np.gradient(x)], axis=1)
-        scale = np.maximum(np.abs(design).max(axis=0), 1e-300)
-        coef, *_ = np.linalg.lstsq(design / scale, residual[:, j], rcond=None)
-        out[:, j] = residual[:, j] - (design / scale) @ coef
+        design = _design(twin[:, j])
+        coef, *_ = np.linalg.lstsq(design, residual[:, j], rcond=None)
+        out[:, j] = residual[:, j] - design @ coef
     return out
 
 
