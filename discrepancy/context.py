@@ -41,6 +41,7 @@ class Context:
     noise: NoiseModel | None = None
     calibration: NullCalibration | None = None
     null_cost: float = 0.0  # expected objective when nothing differs
+    drift_calibration: NullCalibration | None = None  # the null under the whitening with drift
     budget: Budget = field(default_factory=Budget)  # replay and time limits of the searches
 
     def __post_init__(self) -> None:

@@ -93,6 +93,8 @@ class Identification:
     after: LocateResult | None = None
     start_cost: float = 0.0
     final_cost: float = 0.0
+    #: drifting channels whose located excess their sensors' drift explains (nothing named, not unexplained)
+    drift: tuple[str, ...] = ()
 
 
 def _sensor_trials(ctx: Context, base: list[Effect], signals: set[str], suspects: set[str], opts: IdentifyOptions,
@@ -187,11 +189,31 @@ def identify(ctx: Context, located: LocateResult, suspects: set[str], opts: Iden
         tolerable = judge.removed >= EXPLAINED and (len(after.located) <= _tolerated(located) or not _strong(after))
     # a few faint windows that no catalogue effect explains are put down to chance, not to missing physics
     out.unexplained = not tolerable and (bool(out.effects) or _strong(located))
+    if out.unexplained and not out.effects and _drift_explains(ctx, located):
+        out.unexplained, out.drift = False, tuple(sorted({loc.signal for loc in located.located}))
     if not out.unexplained:  # the last round found nothing worth adding: its trials are not an accepted effect
         out.rounds = out.rounds[: len(out.effects)]
     elif only_closest(out, ctx.budget.cut):  # say unexplained rather than name the closest entry
         out.effects, out.after, out.final_cost = [], None, out.start_cost
     return out
+
+
+def _drift_explains(ctx: Context, located: LocateResult) -> bool:
+    """Whether the located excess, which no catalogue effect explains, is the sensors' drift: every located
+    channel's noise model drifts and, whitened with that drift (:meth:`~discrepancy.stats.noise.NoiseModel.
+    whiten_drift`, its null calibrated alike), nothing is located. A random walk's rate is known only roughly from
+    one record and the whitening without it leaves the walk's level, so a walk that went further than its
+    estimated rate is located there; physics the catalogue lacks still shows through the drift's whitening, in
+    its onset and in more than a drifting channel's level."""
+    noise, calibration = ctx.noise, ctx.drift_calibration
+    if noise is None or calibration is None:
+        return False
+    drifting = set(noise.drifting)
+    if not all(loc.signal in drifting for loc in located.located):
+        return False
+    z = noise.whiten_drift(ctx.real_matrix - ctx.matrix(ctx.nominal))
+    left = locate(np.where(np.isfinite(z), z, DIVERGED), ctx.time, ctx.windows(), ctx.names, calibration)
+    return not left.located
 
 
 def only_closest(ident: Identification, cut: str | None) -> bool:

@@ -4,7 +4,8 @@ the residual), gain (weighted regression on the twin's signal) and delay (1-D se
 A drifting level reads as an offset: a bias is not tried where a random walk from zero explains the channel's level
 as well as a constant, nor, on a channel whose noise model drifts (:mod:`discrepancy.stats.noise`), unless a
 constant offset gains more than :data:`OFFSET_EVIDENCE` times what it gains on the null runs (drift alone,
-``NoiseModel.bias_null``); the reason is recorded in ``NoiseModel.withheld``."""
+``NoiseModel.bias_null``); likewise a gain on a drifting channel (``NoiseModel.gain_null``); the reason is
+recorded in ``NoiseModel.withheld``."""
 
 from __future__ import annotations
 
@@ -52,8 +53,9 @@ def sensor_trials(ctx: Context, base: np.ndarray, signal: str) -> list[tuple[Eff
     if _offset_credible(noise, j, float(linear_evidence(zr, z1)), r):
         bias = float(np.sum(zr * z1) / max(np.sum(z1 * z1), 1e-300))
         out.append((Effect.make("sensor_bias", signal, {"bias": bias}), twin + bias))
-    gain = float(np.sum(zr * zx) / max(np.sum(zx * zx), 1e-300))
-    out.append((Effect.make("sensor_gain", signal, {"gain_error": gain}), twin * (1.0 + gain)))
+    if _gain_credible(noise, j, float(linear_evidence(zr, zx))):
+        gain = float(np.sum(zr * zx) / max(np.sum(zx * zx), 1e-300))
+        out.append((Effect.make("sensor_gain", signal, {"gain_error": gain}), twin * (1.0 + gain)))
     delay = _best_delay(ctx.time, real, twin, lambda y: _channel_cost(white(real - y)))
     out.append((Effect.make("sensor_delay", signal, {"delay": delay}), shift(twin, ctx.time, delay)))
     return [(e, total - own + _channel_cost(white(real - y))) for e, y in out]
@@ -78,6 +80,25 @@ def _offset_credible(noise: NoiseModel, j: int, evidence: float, residual: np.nd
     else:
         return True
     noise.withheld[noise.names[j]] = f"sensor_bias not named: {reason}"
+    return False
+
+
+def _gain_credible(noise: NoiseModel, j: int, evidence: float) -> bool:
+    """May a multiple of the twin's signal on channel ``j`` be a sensor gain, given its ``evidence`` (objective
+    gain, whitened units)? On a channel whose noise model drifts, not below :data:`OFFSET_EVIDENCE` times what a
+    gain gains in the null runs (``NoiseModel.gain_null``: a walk that wandered along a slowly rising signal, a
+    payload's mass as the bucket fills, reads as a gain as readily as a level reads as a bias). The reason is
+    recorded in ``noise.withheld``."""
+    channel = noise.channels[j]
+    if channel.drift == 0.0 or noise.gain_null is None:
+        return True
+    null = max(1.0, float(noise.gain_null[j]))
+    if evidence >= OFFSET_EVIDENCE * null:
+        return True
+    reason = (f"its noise drifts (random walk {channel.drift:.3g} per step); a gain gains {evidence:.1f}, below "
+              f"{OFFSET_EVIDENCE:g} x {null:.2f} (its mean gain on the null runs)")
+    name = noise.names[j]
+    noise.withheld[name] = "; ".join(filter(None, [noise.withheld.get(name), f"sensor_gain not named: {reason}"]))
     return False
 
 

@@ -544,6 +544,30 @@ class Whitener:
         return out
 
 
+def drift_innovations(x: np.ndarray, channels: list[ChannelNoise]) -> tuple[np.ndarray, np.ndarray]:
+    """One-step prediction errors of ``x`` (steps, channels; non-finite as 0) and their variances (same shape)
+    under each channel's full model: white + AR(1) + its random walk, the walk's level diffuse at the start (a free
+    constant). Kalman filter of (AR(1) part, level), all channels at once. Where a channel has no drift this is
+    the :class:`Whitener`'s filter with a free constant."""
+    x = np.where(np.isfinite(x), x, 0.0)
+    white2 = np.array([c.white**2 for c in channels])
+    rho = np.array([c.rho for c in channels])
+    c2 = np.array([c.coloured**2 for c in channels])
+    q = np.array([c.drift**2 for c in channels])
+    p00, p01, p11 = c2.copy(), np.zeros(len(channels)), DIFFUSE * np.maximum(white2 + c2, 1e-300)
+    c, level = np.zeros(len(channels)), np.zeros(len(channels))
+    nu_out, s_out = np.empty_like(x, dtype=float), np.empty_like(x, dtype=float)
+    for t, value in enumerate(x):
+        s = np.maximum(p00 + 2.0 * p01 + p11 + white2, 1e-300)
+        nu = value - c - level
+        nu_out[t], s_out[t] = nu, s
+        k0, k1 = (p00 + p01) / s, (p01 + p11) / s
+        c, level = rho * (c + k0 * nu), level + k1 * nu
+        p00, p01, p11 = p00 - k0 * k0 * s, p01 - k0 * k1 * s, p11 - k1 * k1 * s
+        p00, p01, p11 = rho**2 * p00 + c2 * (1.0 - rho**2), rho * p01, p11 + q
+    return nu_out, s_out
+
+
 def linear_evidence(z: np.ndarray, zx: np.ndarray) -> np.ndarray:
     """Objective decrease (whitened units, the quadratic part of the Huber objective) of fitting ``a × x`` by
     generalised least squares, given the whitened residual ``z`` and whitened regressor ``zx`` (same shape;
@@ -574,6 +598,9 @@ class NoiseModel:
     #: per signal, the mean :func:`linear_evidence` of a constant offset in the null runs (drift alone; set by
     #: :func:`~discrepancy.stats.null.calibrate`; None: not calibrated)
     bias_null: np.ndarray | None = None
+    #: per signal, the mean :func:`linear_evidence` of a gain (a multiple of the twin's signal) in the null runs
+    #: (set by :func:`~discrepancy.stats.null.calibrate`; None: not calibrated)
+    gain_null: np.ndarray | None = None
     #: signal → why a sensor fault on it was not tried (filled by the searches)
     withheld: dict[str, str] = field(default_factory=dict)
 
@@ -614,6 +641,19 @@ class NoiseModel:
         """Per signal, :func:`linear_evidence` of a constant offset in ``residual`` (steps, signals)."""
         ones = self.whiten(np.ones_like(residual))
         return linear_evidence(np.nan_to_num(self.whiten(residual)), ones)
+
+    def whiten_drift(self, residual: np.ndarray) -> np.ndarray:
+        """Residual (steps, signals) as prediction errors under the full model, drift included
+        (:func:`drift_innovations`; a free constant), in units of their SD with the twin spread; NaN where it is
+        NaN. What is left is what neither the sensors' noise nor their drift explains."""
+        nu, s = drift_innovations(residual, self.channels)
+        z = nu / np.sqrt(s + self.twin**2)
+        return np.where(np.isfinite(residual), z, np.nan)
+
+    def gain_evidence(self, residual: np.ndarray, twin: np.ndarray) -> np.ndarray:
+        """Per signal, :func:`linear_evidence` of a multiple of ``twin`` (steps, signals; a gain error) in
+        ``residual`` (steps, signals)."""
+        return linear_evidence(np.nan_to_num(self.whiten(residual)), np.nan_to_num(self.whiten(twin)))
 
     def sample(self, rng: np.random.Generator) -> np.ndarray:
         """A sensor-noise realisation (steps, signals) from the model (with its drift)."""

@@ -32,6 +32,8 @@ class NullModel:
     calibration: NullCalibration
     cost: float
     channel_noise: dict[str, float]
+    #: the window statistics' null under the whitening with drift (:meth:`NoiseModel.whiten_drift`)
+    drift_calibration: NullCalibration | None = None
 
 
 def _jittered(effects: Sequence[Effect], rng: np.random.Generator) -> list[Effect]:
@@ -62,15 +64,16 @@ def calibrate(ctx: Context, spec: NullSpec | None = None, effects: Sequence[Effe
     spread = np.array([ctx.scales.signal_scale[s] for s in ctx.names])
     residual = np.nan_to_num(ctx.real_matrix - center)
     regressors = np.nan_to_num(center)  # what the twin's own signals explain is not noise (sensor_noise)
-    noise, calibration, cost = null_from_arrays(ctx.names, residual, dev, spread, regressors, ctx.windows(),
-                                                np.random.default_rng([spec.seed, 7919]))
-    return NullModel(noise, calibration, cost, _channel_noise(ctx, center_result.signals))
+    noise, calibration, cost, drift = null_from_arrays(ctx.names, residual, dev, spread, regressors, ctx.windows(),
+                                                       np.random.default_rng([spec.seed, 7919]))
+    return NullModel(noise, calibration, cost, _channel_noise(ctx, center_result.signals), drift)
 
 
 def null_from_arrays(names: tuple[str, ...], residual: np.ndarray, dev: np.ndarray, spread: np.ndarray,
                      regressors: np.ndarray, wins: list[Window], rng: np.random.Generator
-                     ) -> tuple[NoiseModel, NullCalibration, float]:
-    """Noise model, window calibration and expected objective from arrays (what :func:`calibrate` replays).
+                     ) -> tuple[NoiseModel, NullCalibration, float, NullCalibration]:
+    """Noise model, window calibration, expected objective and the window calibration under the whitening with
+    drift (:meth:`~discrepancy.stats.noise.NoiseModel.whiten_drift`) from arrays (what :func:`calibrate` replays).
 
     Args:
         names: signal names.
@@ -83,7 +86,7 @@ def null_from_arrays(names: tuple[str, ...], residual: np.ndarray, dev: np.ndarr
     """
     noise = NoiseModel.build(names, sensor_noise(residual, spread, regressors), dev)
     sizes = np.array([w.size for w in wins])
-    null_stats, costs, offsets = [], [], []
+    null_stats, costs, offsets, gains, drift_stats = [], [], [], [], []
     for k in range(len(dev)):
         sensed = noise.sample(rng)  # sensor noise as modelled (drift included)
         fake = dev[k] + sensed  # scored like the recording: a noise model re-estimated (from the noise: the
@@ -92,10 +95,14 @@ def null_from_arrays(names: tuple[str, ...], residual: np.ndarray, dev: np.ndarr
         model = NoiseModel.build(names, sensor_noise(sensed, spread, regressors), dev)
         z = model.whiten(fake)
         null_stats.append(window_stats(z, wins))
+        drift_stats.append(window_stats(np.nan_to_num(model.whiten_drift(fake)), wins))
         costs.append(float(np.sum(huber(z))))
         offsets.append(model.bias_evidence(fake))  # what a constant offset gains on noise alone
+        gains.append(model.gain_evidence(fake, regressors))  # ... and a gain (a drift can resemble the twin)
     noise.bias_null = np.mean(offsets, axis=0) if offsets else None
-    return noise, NullCalibration.fit(null_stats, sizes), float(np.mean(costs))
+    noise.gain_null = np.mean(gains, axis=0) if gains else None
+    return (noise, NullCalibration.fit(null_stats, sizes), float(np.mean(costs)),
+            NullCalibration.fit(drift_stats, sizes))
 
 
 def _channel_noise(ctx: Context, twin: dict[str, np.ndarray]) -> dict[str, float]:
@@ -111,3 +118,4 @@ def _channel_noise(ctx: Context, twin: dict[str, np.ndarray]) -> dict[str, float
 def use(ctx: Context, null: NullModel) -> None:
     """Make ``null`` the context's noise model and calibration."""
     ctx.noise, ctx.calibration, ctx.null_cost = null.noise, null.calibration, null.cost
+    ctx.drift_calibration = null.drift_calibration
