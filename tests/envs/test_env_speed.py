@@ -158,10 +158,16 @@ def timestep_mape(monkeypatch: pytest.MonkeyPatch, scale: str, factor: float) ->
     return float(np.mean(np.abs(other[rows] - ref[rows]) / np.abs(ref[rows]))) * 100.0
 
 
-@pytest.mark.parametrize("scale", ["er12", "wa475"])
+MINI_NOT_CONVERGED = pytest.mark.xfail(
+    strict=True, reason="known defect, not fixed: at the mini's Froude timestep (0.38 ms) the stalled curl at relief "
+    "breaks out later than at 0.19 ms and 0.095 ms, which agree with each other (F21 over the dig 0.8 % apart, "
+    "against 15 % from the Froude step): the mini needs a timestep chosen by convergence, not by Froude scaling")
+
+
+@pytest.mark.parametrize("scale", ["er12", "wa475", pytest.param("mini", marks=MINI_NOT_CONVERGED)])
 def test_froude_timestep_is_converged(monkeypatch: pytest.MonkeyPatch, scale: str) -> None:
     """Halving the timestep moves F21 over the dig by < 1 % (mean absolute): the Froude-scaled 1 ms × √λ is a
-    converged choice at the ER12 and the WA475."""
+    converged choice at the ER12 and the WA475 (not at the mini: :data:`MINI_NOT_CONVERGED`)."""
     assert timestep_mape(monkeypatch, scale, 0.5) < 1.0
 
 
