@@ -10,7 +10,8 @@ JSON::
      "fit": {"held_out", "before": {signal: nrmse}, "after": {signal: nrmse}, "by_phase": {signal: {phase: [b, a]}},
              "normaliser": {signal: spread}, "scale": {signal: rms}, "flags": {signal: [flag]},
              "phase_flags": {signal: {phase: [flag]}}, "worse_overall"},
-     "search": {"replay_budget", "time_budget_s", "replays", "cut", "cut_at_s"}}  # only when the search was cut
+     "search": {"replay_budget", "time_budget_s", "replays", "cut", "cut_at_s"},  # only when the search was cut
+     "drift": [signal]}  # only when what was located is put down to those sensors' drift
 
 ``p_value`` is Benjamini–Hochberg adjusted; ``parameters``/``interval`` hold each SI parameter and its
 dimensionless group as ``pi_<parameter>``, ``units`` the SI unit of each parameter. ``confidence`` is a named
@@ -116,6 +117,8 @@ def to_json(d: Diagnosis) -> dict[str, Any]:
         doc["input"] = d.train.input_report.to_dict()
     if d.alignment is not None:
         doc["alignment"] = d.alignment.to_dict()
+    if d.identification.drift:  # only then: what was located is put down to the sensors' drift
+        doc["drift"] = list(d.identification.drift)
     validate(doc)
     return doc
 
@@ -253,13 +256,24 @@ def text_report(d: Diagnosis, width: int | None = None) -> str:
     lines += ["", warning] if (warning := " ".join(warnings(d))) else []
     lines += ["", *input_notes(d)] if input_notes(d) else []
     if not d.effects:
-        lines += ["", "No effect named: " + ("nothing differs beyond noise." if not d.located else
-                                             "a few faint windows no candidate explains (put down to chance).")]
+        lines += ["", "No effect named: " + _nothing_named(d)]
     for k, e in enumerate(d.effects, 1):
         title, body = effect_lines(e)
         lines += ["", f"{k}. {title}", *(f"   {b}" for b in body)]
     lines += ["", *_comparison_lines(d.comparison)]
     return "\n".join(w for line in lines for w in _wrap(line, width)) + "\n"
+
+
+def _nothing_named(d: Diagnosis) -> str:
+    """Why a diagnosis that names nothing names nothing (it located nothing, the sensors' drift explains what it
+    located, or a few faint windows are put down to chance)."""
+    if not d.located:
+        return "nothing differs beyond noise."
+    if d.identification.drift:
+        return (f"what was located on {', '.join(d.identification.drift)} is put down to those sensors' drift "
+                "(whitened with the drift estimated on the record, nothing is left; no catalogue effect explains "
+                "it).")
+    return "a few faint windows no candidate explains (put down to chance)."
 
 
 def _table(header: list[str], rows: list[list[str]]) -> list[str]:
@@ -271,7 +285,7 @@ def _effects_section(d: Diagnosis) -> list[str]:
     out = [f"**{w}**" for w in warnings(d)]
     out += [""] if out else []
     if not d.effects:
-        return [*out, "Nothing differs beyond noise: no effect is named."]
+        return [*out, "No effect is named: " + _nothing_named(d)]
     for k, e in enumerate(d.effects, 1):
         title, body = effect_lines(e)
         out += [f"### {k}. {title}", "", *(f"- {b}" for b in body), ""]

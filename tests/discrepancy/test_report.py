@@ -234,3 +234,18 @@ def test_compare_records_normalisers(diagnosis) -> None:
     assert all(v > 0 for v in c.normaliser.values())
     assert not c.worse_overall and "F31" not in c.worse
     assert c.residual(True) < c.residual(False)
+
+
+def test_a_residual_put_down_to_drift_is_said_so(diagnosis) -> None:
+    """Where the identification puts what was located down to the sensors' drift (``Identification.drift``), the
+    terminal summary, the Markdown report and the JSON document (``drift``, validated) say so and name the
+    channels; without it the document has no ``drift`` key and the summary puts faint windows down to chance."""
+    ident = dataclasses.replace(diagnosis.identification, effects=[], unexplained=False, drift=("F31", "F31_x"))
+    drifted = dataclasses.replace(diagnosis, effects=[], identification=ident)
+    assert drifted.located  # something was located, and nothing is named
+    for text in (text_report(drifted, width=200), markdown(drifted)):
+        assert "put down to those sensors' drift" in text and "F31, F31_x" in text
+    doc = to_json(drifted)
+    assert doc["drift"] == ["F31", "F31_x"]
+    quiet = dataclasses.replace(drifted, identification=dataclasses.replace(ident, drift=()))
+    assert "drift" not in to_json(quiet) and "put down to chance" in text_report(quiet, width=200)
