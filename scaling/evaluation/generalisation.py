@@ -350,12 +350,13 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
                       for s in sources(name, target)]
         pairs, log_pred, scale, pred = combine_sources(models[name], per_source)
         f21 = pairs.target_values()
-        kind = row_kinds(pairs, tgt)
+        rows = target_rows(pairs, tgt)
+        kind = kinds(tgt)[rows]
         features = np.column_stack([np.log(scale), np.log(novelty[name].score(pairs.pi_target)),
                                     np.abs(log_pred), np.full(len(pairs), np.log(machine_score[target])),
                                     (kind == "static").astype(float)])
         g = None if models[name] is None else models[name].features(pairs)
-        tilt_load = row_values(pairs, tgt, tgt["tilt_load"].to_numpy(float))
+        tilt_load = tgt["tilt_load"].to_numpy(float)[rows]
         return _Predicted(pairs, kind, log_pred, scale, pred, f21, _errors(pred, f21), features, tilt_load, g)
 
     calibrators: dict[str, GroupConformal] = {}
@@ -429,7 +430,7 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
         f21 = tgt["F21"].to_numpy(float)
         pred = tgt["tilt_ratio"].to_numpy(float) * np.abs(tgt["Pf_tilt"].to_numpy(float))
         err = _errors(pred, f21)
-        label = np.where(at_rest(tgt), "static", "dynamic")
+        label = kinds(tgt)
         results.append(_summarise(m, "linkage statics", "-", err, label, pred, f21,
                                   *(np.full(len(err), np.nan) for _ in range(3))))
     extrap_out: dict[str, Any] = {
@@ -476,16 +477,21 @@ class _Predicted:
     g: np.ndarray | None = None
 
 
-def row_values(pairs: DeltaDataset, tgt: pd.DataFrame, values: np.ndarray) -> np.ndarray:
-    """``values`` (one per row of ``tgt``) of every pair's target row (pairs keep target rows in order, minus
-    dropped ones: matched back by (episode, time))."""
-    lookup = dict(zip(zip(tgt["episode"].to_numpy(), tgt["t"].to_numpy(), strict=True), values, strict=True))
-    return np.array([lookup[(e, t)] for e, t in zip(pairs.episode, pairs.t, strict=True)])
+def kinds(frame: pd.DataFrame) -> np.ndarray:
+    """``"static"`` (the bucket at rest, :func:`~scaling.evaluation.metrics.at_rest`) or ``"dynamic"`` per row."""
+    return np.where(at_rest(frame), "static", "dynamic")
+
+
+def target_rows(pairs: DeltaDataset, tgt: pd.DataFrame) -> np.ndarray:
+    """Position in ``tgt`` of every pair's target row (pairs keep target rows in order, minus dropped ones: matched
+    back by (episode, time))."""
+    lookup = {key: k for k, key in enumerate(zip(tgt["episode"].to_numpy(), tgt["t"].to_numpy(), strict=True))}
+    return np.array([lookup[(e, t)] for e, t in zip(pairs.episode, pairs.t, strict=True)], dtype=int)
 
 
 def row_kinds(pairs: DeltaDataset, tgt: pd.DataFrame) -> np.ndarray:
-    """``"static"`` or ``"dynamic"`` for every pair (:func:`row_values` of the target rows' kind)."""
-    return row_values(pairs, tgt, np.where(at_rest(tgt), "static", "dynamic"))
+    """:func:`kinds` of every pair's target row."""
+    return kinds(tgt)[target_rows(pairs, tgt)]
 
 
 def _summarise(machine: str, model: str, source: str, err: np.ndarray, kind: np.ndarray, pred: np.ndarray,
