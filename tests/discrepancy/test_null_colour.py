@@ -13,7 +13,14 @@ from discrepancy.bench.cases import make_case
 from discrepancy.bench.run import run_case
 from discrepancy.search.sensors import OFFSET_EVIDENCE, _gain_credible
 from discrepancy.stats.locate import locate, windows
-from discrepancy.stats.noise import ChannelNoise, _unexplained_by, estimate_drift, sensor_noise
+from discrepancy.stats.noise import (
+    ChannelNoise,
+    _unexplained_by,
+    estimate_drift,
+    level_loglik,
+    regression_loglik,
+    sensor_noise,
+)
 from discrepancy.stats.null import null_from_arrays
 
 
@@ -29,6 +36,20 @@ def _walks(steps: int, rate: float, seeds: range) -> list[np.ndarray]:
         rng = np.random.default_rng([31, k])
         out.append(rng.standard_normal(steps) + np.cumsum(rate * rng.standard_normal(steps)))
     return out
+
+
+def test_the_restricted_likelihood_without_regressors_is_the_level_likelihood() -> None:
+    """Two routes to one number: the general Kalman filter (level, AR(1) part and regression coefficients) with no
+    regressor gives the likelihood of the two-state filter with a diffuse level, at every walk rate; a regressor
+    that is a constant adds only its own diffuse prior, the same at every rate, so the rate it picks is the same."""
+    rng = np.random.default_rng(1)
+    x = np.cumsum(rng.normal(0.0, 0.3, 120)) + rng.normal(0.0, 1.0, 120)
+    short, q = ChannelNoise(1.0, 0.6, 0.5), np.array([0.0, 0.01, 0.1, 1.0])
+    plain = level_loglik(x, short, q)
+    np.testing.assert_allclose(regression_loglik(x, short, q, np.zeros((120, 0))), plain, rtol=1e-12)
+    assert plain[1] > plain[0]  # the walk in x is found
+    constant = regression_loglik(x, short, q, np.ones((120, 1)))
+    assert int(np.argmax(constant)) == int(np.argmax(plain))
 
 
 def test_a_walk_beside_a_ramp_keeps_its_rate() -> None:
