@@ -65,19 +65,17 @@ def _offset_credible(noise: NoiseModel, j: int, evidence: float, residual: np.nd
     """May a constant offset on channel ``j`` be a sensor bias, given its ``evidence`` (objective gain, whitened
     units) and the channel's ``residual`` (steps,)? Not when a random walk from zero explains the residual's level
     as well as a constant does (:func:`~discrepancy.stats.noise.offset_or_drift`: the level wanders), nor, on a
-    channel whose noise model drifts, below :data:`OFFSET_EVIDENCE` times what drift alone gains in the null runs.
-    The reason is recorded in ``noise.withheld``."""
-    channel = noise.channels[j]
-    short = dataclasses.replace(channel, drift=0.0)
-    null = 1.0 if noise.bias_null is None else max(1.0, float(noise.bias_null[j]))
+    channel whose noise model drifts, below :data:`OFFSET_EVIDENCE` times what drift alone gains in the null runs
+    (:func:`_drift_reason`). The reason is recorded in ``noise.withheld``."""
+    short = dataclasses.replace(noise.channels[j], drift=0.0)
+    null = None if noise.bias_null is None else noise.bias_null[j]
     margin = offset_or_drift(residual, short)
     if margin < 0.0:
-        reason = (f"a random walk from zero explains its level better than a constant offset (by {-margin:.1f} "
-                  "log-likelihood): drift, not a bias")
-    elif channel.drift > 0.0 and evidence < OFFSET_EVIDENCE * null:
-        reason = (f"its noise drifts (random walk {channel.drift:.3g} per step); a constant offset gains "
-                  f"{evidence:.1f}, below {OFFSET_EVIDENCE:g} x {null:.2f} (its mean gain on the null runs)")
+        reason: str | None = (f"a random walk from zero explains its level better than a constant offset (by "
+                              f"{-margin:.1f} log-likelihood): drift, not a bias")
     else:
+        reason = _drift_reason(noise, j, evidence, null, "a constant offset")
+    if reason is None:
         return True
     noise.withheld[noise.names[j]] = f"sensor_bias not named: {reason}"
     return False
@@ -87,19 +85,28 @@ def _gain_credible(noise: NoiseModel, j: int, evidence: float) -> bool:
     """May a multiple of the twin's signal on channel ``j`` be a sensor gain, given its ``evidence`` (objective
     gain, whitened units)? On a channel whose noise model drifts, not below :data:`OFFSET_EVIDENCE` times what a
     gain gains in the null runs (``NoiseModel.gain_null``: a walk that wandered along a slowly rising signal, a
-    payload's mass as the bucket fills, reads as a gain as readily as a level reads as a bias). The reason is
-    recorded in ``noise.withheld``."""
-    channel = noise.channels[j]
-    if channel.drift == 0.0 or noise.gain_null is None:
+    payload's mass as the bucket fills, reads as a gain as readily as a level reads as a bias; :func:`_drift_reason`).
+    The reason is recorded in ``noise.withheld``."""
+    if noise.gain_null is None:
         return True
-    null = max(1.0, float(noise.gain_null[j]))
-    if evidence >= OFFSET_EVIDENCE * null:
+    reason = _drift_reason(noise, j, evidence, noise.gain_null[j], "a gain")
+    if reason is None:
         return True
-    reason = (f"its noise drifts (random walk {channel.drift:.3g} per step); a gain gains {evidence:.1f}, below "
-              f"{OFFSET_EVIDENCE:g} x {null:.2f} (its mean gain on the null runs)")
     name = noise.names[j]
     noise.withheld[name] = "; ".join(filter(None, [noise.withheld.get(name), f"sensor_gain not named: {reason}"]))
     return False
+
+
+def _drift_reason(noise: NoiseModel, j: int, evidence: float, null: float | None, what: str) -> str | None:
+    """Why a sensor fault (``what``: "a constant offset", "a gain") with ``evidence`` on channel ``j`` is not
+    named: its noise model drifts and the evidence is below :data:`OFFSET_EVIDENCE` times ``null``, what the fault
+    gains on the null runs (at least 1; 1 where there is none); None when it may be named."""
+    drift = noise.channels[j].drift
+    floor = 1.0 if null is None else max(1.0, float(null))
+    if drift == 0.0 or evidence >= OFFSET_EVIDENCE * floor:
+        return None
+    return (f"its noise drifts (random walk {drift:.3g} per step); {what} gains {evidence:.1f}, below "
+            f"{OFFSET_EVIDENCE:g} x {floor:.2f} (its mean gain on the null runs)")
 
 
 def _best_delay(time: np.ndarray, real: np.ndarray, twin: np.ndarray, cost: Callable[[np.ndarray], float]) -> float:
