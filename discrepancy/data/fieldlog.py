@@ -46,7 +46,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -513,13 +513,10 @@ def estimate_sensor_tau(real: Mapping[str, np.ndarray], twin: Mapping[str, np.nd
                         channels: Sequence[str] | None = None) -> float:
     """One first-order sensor time constant (s) common to ``channels`` (default: every compared channel present
     and finite in both): the ``tau`` in ``[0, TAU_MAX]`` minimising the mean squared residual of ``real`` against
-    the twin passed through :func:`first_order_filter` (each channel normalised by the twin's spread). A scan on
-    a geometric grid, then a bounded scalar search around the best point; 0 when no filter lowers the residual by
-    :data:`MIN_TAU_GAIN`.
+    the twin passed through :func:`first_order_filter` (each channel normalised by the twin's spread), found by
+    :func:`_best_tau`; 0 when no filter lowers the residual by :data:`MIN_TAU_GAIN`.
     """
-    chosen = channels if channels is not None else COMPARED
-    names = [c for c in chosen if c in real and c in twin and np.all(np.isfinite(real[c]))
-             and np.all(np.isfinite(twin[c])) and np.std(twin[c]) > 0]
+    names = _filterable(real, twin, channels)
     if not names:
         return 0.0
     scale = {c: float(np.std(twin[c])) for c in names}
@@ -528,15 +525,8 @@ def estimate_sensor_tau(real: Mapping[str, np.ndarray], twin: Mapping[str, np.nd
         return float(np.mean([np.mean(((real[c] - first_order_filter(twin[c], dt, tau)) / scale[c]) ** 2)
                               for c in names]))
 
-    grid = np.concatenate(([0.0], np.geomspace(0.01 * dt, TAU_MAX, 24)))  # 24 points: ~30 % apart
-    costs = np.array([cost(v) for v in grid])
-    best = int(np.argmin(costs))
-    if best == 0:
-        return 0.0
-    lo, hi = grid[best - 1], grid[min(best + 1, len(grid) - 1)]
-    res = optimize.minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": 1e-4})
-    tau, c_tau = (float(res.x), float(res.fun)) if res.fun < costs[best] else (float(grid[best]), costs[best])
-    return tau if c_tau <= (1.0 - MIN_TAU_GAIN) * costs[0] else 0.0
+    tau, c_tau, c_none = _best_tau(cost, dt)
+    return tau if c_tau <= (1.0 - MIN_TAU_GAIN) * c_none else 0.0
 
 
 def estimate_channel_taus(real: Mapping[str, np.ndarray], twin: Mapping[str, np.ndarray], dt: float,
@@ -552,25 +542,39 @@ def estimate_channel_taus(real: Mapping[str, np.ndarray], twin: Mapping[str, np.
     which reads as a discrepancy. Call it only where a common filter was found (:func:`estimate_sensor_tau` > 0):
     a lag on one channel of an unfiltered log is a sensor fault the diagnosis names (``sensor_delay``).
     """
-    chosen = channels if channels is not None else COMPARED
-    names = [c for c in chosen if c in real and c in twin and np.all(np.isfinite(real[c]))
-             and np.all(np.isfinite(twin[c])) and np.std(twin[c]) > 0]
-    grid = np.concatenate(([0.0], np.geomspace(0.01 * dt, TAU_MAX, 24)))
     out = {}
-    for c in names:
+    for c in _filterable(real, twin, channels):
 
         def cost(tau: float, c: str = c) -> float:
             return float(np.mean((real[c] - first_order_filter(twin[c], dt, tau)) ** 2))
 
-        costs = np.array([cost(v) for v in grid])
-        best = int(np.argmin(costs))
-        if best == 0:
-            out[c] = 0.0
-            continue
-        lo, hi = grid[best - 1], grid[min(best + 1, len(grid) - 1)]
-        res = optimize.minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": 1e-4})
-        out[c] = float(res.x) if res.fun < costs[best] else float(grid[best])
+        out[c] = _best_tau(cost, dt)[0]
     return out
+
+
+def _filterable(real: Mapping[str, np.ndarray], twin: Mapping[str, np.ndarray],
+                channels: Sequence[str] | None) -> list[str]:
+    """The channels of ``channels`` (default: the compared ones) present and finite in both, the twin's not
+    constant: those a sensor filter can be fitted on."""
+    chosen = channels if channels is not None else COMPARED
+    return [c for c in chosen if c in real and c in twin and np.all(np.isfinite(real[c]))
+            and np.all(np.isfinite(twin[c])) and np.std(twin[c]) > 0]
+
+
+def _best_tau(cost: Callable[[float], float], dt: float) -> tuple[float, float, float]:
+    """(tau, its cost, the cost without a filter) of the ``tau`` (s) in ``[0, TAU_MAX]`` minimising ``cost``: a
+    scan on a geometric grid (24 points, ~30 % apart, from 1 % of the control step ``dt``), then a bounded scalar
+    search around the best point; tau 0 when no grid point beats no filter."""
+    grid = np.concatenate(([0.0], np.geomspace(0.01 * dt, TAU_MAX, 24)))
+    costs = np.array([cost(v) for v in grid])
+    best = int(np.argmin(costs))
+    if best == 0:
+        return 0.0, float(costs[0]), float(costs[0])
+    lo, hi = grid[best - 1], grid[min(best + 1, len(grid) - 1)]
+    res = optimize.minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": 1e-4})
+    if res.fun < costs[best]:
+        return float(res.x), float(res.fun), float(costs[0])
+    return float(grid[best]), float(costs[best]), float(costs[0])
 
 
 __all__ = [
