@@ -350,6 +350,36 @@ def resample_commands(time: np.ndarray, commands: np.ndarray, grid: np.ndarray, 
     return np.clip(np.diff(at, axis=0) / dt, -1.0, 1.0)  # clip: rounding only, the inputs are within [-1, 1]
 
 
+def command_timing(report: InputReport | None) -> float:
+    """How uncertain the timing of a prepared log's commands is, in control steps: a logger samples a command
+    every ``h`` s, so a change between two samples happened somewhere in that interval and the control step's mean
+    command (:func:`resample_commands`) is known only to within ``h / 2`` of its switching time. 0 for a log taken
+    as it is (its commands are the twin's own)."""
+    if report is None or not report.resampled or not report.control_dt or report.original_rate_hz <= 0:
+        return 0.0
+    return min(0.5, 0.5 / (report.original_rate_hz * report.control_dt))
+
+
+def moved_commands(commands: np.ndarray, shift: np.ndarray) -> np.ndarray:
+    """``commands`` (steps, inputs; each held over its control step) with the change into row ``k + 1`` moved by
+    ``shift[k]`` control steps (|shift| ≤ 1): moved later (> 0), row ``k + 1`` keeps the old command over that
+    share of its step; moved earlier (< 0), row ``k`` takes the new one over that share; within [-1, 1]."""
+    out = np.array(commands, dtype=np.float64, copy=True)
+    change = np.diff(out, axis=0)
+    later, earlier = np.clip(shift, 0.0, None), np.clip(-np.asarray(shift), 0.0, None)
+    out[1:] -= later[:, None] * change
+    out[:-1] += earlier[:, None] * change
+    return np.clip(out, -1.0, 1.0)
+
+
+def jittered_commands(commands: np.ndarray, timing: float, rng: np.random.Generator) -> np.ndarray:
+    """``commands`` with each change between control steps moved by a uniform draw within ±``timing`` control
+    steps (:func:`command_timing`, :func:`moved_commands`)."""
+    if timing <= 0 or len(commands) < 2:
+        return np.array(commands, dtype=np.float64, copy=True)
+    return moved_commands(commands, rng.uniform(-timing, timing, size=len(commands) - 1))
+
+
 def resample_phases(time: np.ndarray, phases: np.ndarray, grid: np.ndarray) -> np.ndarray:
     """The logged phase nearest in time to each control time."""
     idx = np.clip(np.searchsorted(time, grid), 1, len(time) - 1)
@@ -493,19 +523,20 @@ def shift_signals(ep: EpisodeData, offset: float) -> EpisodeData:
 # -- sensor low-pass ---------------------------------------------------------------------------------------------
 
 def first_order_filter(x: np.ndarray, dt: float, tau: float) -> np.ndarray:
-    """``x`` (sampled every ``dt`` s) through a first-order lag ``tau dy/dt = x - y`` (``tau`` in s).
+    """``x`` (sampled every ``dt`` s along its last axis: one channel, or channels × samples) through a
+    first-order lag ``tau dy/dt = x - y`` (``tau`` in s).
 
     Exact discretisation for an input linear between samples: with ``a = exp(-dt/tau)`` and
     ``c = tau (1 - a) / dt``, ``y_k = a y_{k-1} + (1 - c) x_k + (c - a) x_{k-1}``; the sensor starts settled
     (``y_0 = x_0``). ``tau <= 0`` returns a copy of ``x``.
     """
     x = np.asarray(x, dtype=np.float64)
-    if tau <= 0 or len(x) == 0:
+    if tau <= 0 or x.shape[-1] == 0:
         return x.copy()
     a = math.exp(-dt / tau)
     c = tau * (1.0 - a) / dt
     b, den = np.array([1.0 - c, c - a]), np.array([1.0, -a])
-    y, _ = signal.lfilter(b, den, x, zi=signal.lfilter_zi(b, den) * x[0])
+    y, _ = signal.lfilter(b, den, x, zi=signal.lfilter_zi(b, den) * x[..., :1])
     return y
 
 
@@ -514,7 +545,7 @@ def estimate_sensor_tau(real: Mapping[str, np.ndarray], twin: Mapping[str, np.nd
     """One first-order sensor time constant (s) common to ``channels`` (default: every compared channel present
     and finite in both): the ``tau`` in ``[0, TAU_MAX]`` minimising the mean squared residual of ``real`` against
     the twin passed through :func:`first_order_filter` (each channel normalised by the twin's spread), found by
-    :func:`_best_tau`; 0 when no filter lowers the residual by :data:`MIN_TAU_GAIN`.
+    :func:`best_tau`; 0 when no filter lowers the residual by :data:`MIN_TAU_GAIN`.
     """
     names = _filterable(real, twin, channels)
     if not names:
@@ -525,7 +556,7 @@ def estimate_sensor_tau(real: Mapping[str, np.ndarray], twin: Mapping[str, np.nd
         return float(np.mean([np.mean(((real[c] - first_order_filter(twin[c], dt, tau)) / scale[c]) ** 2)
                               for c in names]))
 
-    tau, c_tau, c_none = _best_tau(cost, dt)
+    tau, c_tau, c_none = best_tau(cost, dt)
     return tau if c_tau <= (1.0 - MIN_TAU_GAIN) * c_none else 0.0
 
 
@@ -548,7 +579,7 @@ def estimate_channel_taus(real: Mapping[str, np.ndarray], twin: Mapping[str, np.
         def cost(tau: float, c: str = c) -> float:
             return float(np.mean((real[c] - first_order_filter(twin[c], dt, tau)) ** 2))
 
-        out[c] = _best_tau(cost, dt)[0]
+        out[c] = best_tau(cost, dt)[0]
     return out
 
 
@@ -561,7 +592,7 @@ def _filterable(real: Mapping[str, np.ndarray], twin: Mapping[str, np.ndarray],
             and np.all(np.isfinite(twin[c])) and np.std(twin[c]) > 0]
 
 
-def _best_tau(cost: Callable[[float], float], dt: float) -> tuple[float, float, float]:
+def best_tau(cost: Callable[[float], float], dt: float) -> tuple[float, float, float]:
     """(tau, its cost, the cost without a filter) of the ``tau`` (s) in ``[0, TAU_MAX]`` minimising ``cost``: a
     scan on a geometric grid (24 points, ~30 % apart, from 1 % of the control step ``dt``), then a bounded scalar
     search around the best point; tau 0 when no grid point beats no filter."""
@@ -579,8 +610,7 @@ def _best_tau(cost: Callable[[float], float], dt: float) -> tuple[float, float, 
 
 __all__ = [
     "KINEMATIC", "MAX_GAP_STEPS", "InputReport", "OffsetEstimate", "PreparedLog",
-    "antialias_filter", "bridge_gaps", "control_grid", "end_level", "estimate_channel_taus", "estimate_offset",
-    "estimate_sensor_tau",
-    "first_order_filter", "prepare_log", "resample_commands", "resample_phases", "resample_signal",
-    "shift_signals",
+    "antialias_filter", "best_tau", "bridge_gaps", "command_timing", "control_grid", "end_level",
+    "estimate_channel_taus", "estimate_offset", "estimate_sensor_tau", "first_order_filter", "jittered_commands",
+    "moved_commands", "prepare_log", "resample_commands", "resample_phases", "resample_signal", "shift_signals",
 ]

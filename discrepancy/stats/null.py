@@ -3,7 +3,12 @@
 :func:`calibrate` does it around the nominal twin (before anything is known) or around a twin that already
 includes effects (to judge whether what is left after modelling them is still beyond noise); then the fitted
 parameters are perturbed too (relative :data:`PARAM_JITTER`), so that moments where the corrected twin itself is
-fragile (e.g. samples taken just after a delayed valve switch) are not mistaken for a residual.
+fragile (e.g. samples taken just after a delayed valve switch) are not mistaken for a residual. A twin whose start
+was estimated from a log without seed draws each run's start from the estimate's spread
+(:meth:`~discrepancy.twin.spec.TwinSpec.null_starts`): later in a dig, what a slightly different pile does is
+not a discrepancy; a resampled log's runs replay its commands with their switching times moved within what the
+log's sampling leaves uncertain (:func:`~discrepancy.data.fieldlog.jittered_commands`): a dig meets events
+(a cylinder stalling at relief, the wheels slipping) whose timing a command a hundredth of a step off moves.
 """
 
 from __future__ import annotations
@@ -14,10 +19,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from discrepancy.context import Context, huber
+from discrepancy.data.fieldlog import command_timing, jittered_commands
 from discrepancy.effects import Effect
 from discrepancy.stats.locate import NullCalibration, Window, window_stats
 from discrepancy.stats.noise import NoiseModel, NullSpec, sensor_noise
 from discrepancy.twin.plant import Plan, plan
+from discrepancy.twin.spec import SimResult
 
 PARAM_JITTER = 0.02  # relative perturbation of fitted parameters in the null runs around a corrected twin
 #: ... per effect where it should differ (none at present).
@@ -57,7 +64,7 @@ def calibrate(ctx: Context, spec: NullSpec | None = None, effects: Sequence[Effe
     spec = spec or NullSpec()
     center_result = ctx.replays.get(list(effects))
     center = ctx.matrix(center_result)
-    runs = ctx.replays.runner.run_many(ctx.real.commands, _plans(ctx, spec, effects), ctx.replays.seed)
+    runs = _null_runs(ctx, spec, _plans(ctx, spec, effects))
     ctx.replays.runs += len(runs)
     dev = np.stack([ctx.matrix(r) - center for r in runs])
     dev = np.where(np.isfinite(dev), dev, 0.0)
@@ -67,6 +74,19 @@ def calibrate(ctx: Context, spec: NullSpec | None = None, effects: Sequence[Effe
     noise, calibration, cost, drift = null_from_arrays(ctx.names, residual, dev, spread, regressors, ctx.windows(),
                                                        np.random.default_rng([spec.seed, 7919]))
     return NullModel(noise, calibration, cost, _channel_noise(ctx, center_result.signals), drift)
+
+
+def _null_runs(ctx: Context, spec: NullSpec, plans: list[Plan]) -> list[SimResult]:
+    """The null's replays: one per plan, from the twin's start draws (a log without seed), each with the log's
+    commands moved within their timing uncertainty (a resampled log, :func:`command_timing`)."""
+    runner = ctx.replays.runner
+    starts = runner.twin.null_starts(len(plans))
+    timing = command_timing(ctx.real.input_report)
+    if timing <= 0:
+        return runner.run_many(ctx.real.commands, plans, ctx.replays.seed, starts=starts)
+    return [runner.run_many(jittered_commands(ctx.real.commands, timing, np.random.default_rng([spec.seed, k, 59])),
+                            [p], ctx.replays.seed, starts=None if starts is None else [starts[k]])[0]
+            for k, p in enumerate(plans)]
 
 
 def null_from_arrays(names: tuple[str, ...], residual: np.ndarray, dev: np.ndarray, spread: np.ndarray,

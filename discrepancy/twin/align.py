@@ -71,17 +71,22 @@ def _offset(ep: EpisodeData, twin: dict, notes: list[str]) -> tuple[OffsetEstima
     return offset, False
 
 
+def _head(signals: dict[str, np.ndarray], rows: int) -> dict[str, np.ndarray]:
+    return {c: v[:rows] for c, v in signals.items()}
+
+
 def _channel_taus(ep: EpisodeData, spec: TwinSpec, runner: Runner, nominal: SimResult,
-                  shifted: bool) -> tuple[tuple[str, float], ...]:
-    """Each channel's own sensor time constant (s) against the twin (the log ``ep`` as compared, its offset
-    undone when ``shifted``; ``nominal`` the unfiltered replay of the commands before that), where it differs from
-    the common ``spec.sensor_tau`` by at least :data:`TOLERANCE` control steps (:func:`estimate_channel_taus`)."""
+                  shifted: bool, rows: int) -> tuple[tuple[str, float], ...]:
+    """Each channel's own sensor time constant (s) against the twin over the first ``rows`` rows (the log ``ep``
+    as compared, its offset undone when ``shifted``; ``nominal`` the unfiltered replay of the commands before
+    that), where it differs from the common ``spec.sensor_tau`` by at least :data:`TOLERANCE` control steps
+    (:func:`estimate_channel_taus`)."""
     if shifted:
         again = runner.with_twin(dataclasses.replace(spec, sensor_tau=0.0, sensor_taus=())).run_many(
             ep.commands, [Plan()])[0]
         nominal = nominal if again.error else again
-    rows = len(ep)
-    taus = estimate_channel_taus(ep.signals, {c: v[:rows] for c, v in nominal.signals.items()}, ep.dt)
+    rows = min(rows, len(ep))
+    taus = estimate_channel_taus(_head(ep.signals, rows), _head(nominal.signals, rows), ep.dt)
     return tuple(sorted((c, t) for c, t in taus.items() if abs(t - spec.sensor_tau) >= TOLERANCE * ep.dt))
 
 
@@ -98,26 +103,23 @@ def align(ep: EpisodeData, spec: TwinSpec, runner: Runner) -> tuple[EpisodeData,
         if not first.error:  # against the default start: a first guess, checked once the start is known
             guess = estimate_offset(ep.signals, first.signals, ep.dt)
             total = guess.offset if guess.significant else 0.0
-        fit_tau = spec.sensor_tau  # the sensor filter the start is fitted through (a lag biases the pile's place)
-        for k in range(REFINE_START + 1):  # the start on the log so aligned, then offset and filter against it
+        # a filter the twin does not declare is fitted jointly with the start (each replay through its best
+        # filter, see estimate_start): a lag fitted afterwards absorbs a pile misplaced to make up for it
+        profile = spec.sensor_tau == 0.0
+        for k in range(REFINE_START + 1):  # the start on the log so aligned, then the offset against it
             held = int(np.ceil(max(-total, 0.0) / ep.dt - 1e-9))  # rows a negative offset leaves unlogged
             shifted = shift_signals(ep, total) if total else ep
-            start = estimate_start(shifted, runner.with_twin(dataclasses.replace(spec, sensor_tau=fit_tau)), held)
-            spec = dataclasses.replace(spec, start=start.options)
+            start = estimate_start(shifted, runner.with_twin(spec), held, profile_filter=profile)
+            spec = dataclasses.replace(spec, start=start.options, start_draws=start.draws)
             again = runner.with_twin(spec).run_many(ep.commands, [Plan()])[0]
             if again.error or k == REFINE_START:
                 break
-            if spec.sensor_tau == 0.0:  # a filter the twin does not declare: estimated against this start
-                rows = len(shifted)  # a positive offset trims the log's last rows (the replay's first rows stay)
-                tau = estimate_sensor_tau(shifted.signals, {c: v[:rows] for c, v in again.signals.items()}, ep.dt)
-                seen = _filtered(again, ep.dt, tau)
-            else:
-                tau, seen = fit_tau, again.signals
+            seen = _filtered(again, ep.dt, start.sensor_tau) if profile else again.signals
             refined, undo = _offset(ep, seen, [])
             new_total = refined.offset if undo else 0.0
-            if abs(new_total - total) <= TOLERANCE * ep.dt and abs(tau - fit_tau) <= TOLERANCE * ep.dt:
+            if abs(new_total - total) <= TOLERANCE * ep.dt:
                 break
-            total, fit_tau = new_total, tau
+            total = new_total
         applied, offset = total != 0.0, (estimate_offset(ep.signals, again.signals, ep.dt) if total else None)
         assert start is not None
         notes.append(f"the log has no reset seed: start pose and pile estimated from it ({start.replays} replays; "
@@ -130,7 +132,13 @@ def align(ep: EpisodeData, spec: TwinSpec, runner: Runner) -> tuple[EpisodeData,
     nominal = runner.with_twin(spec).run_many(shifted.commands, [Plan()])[0]
     if nominal.error:
         return ep, spec, Alignment(start, 0.0, offset, applied, tuple(notes))
-    tau = estimate_sensor_tau(shifted.signals, nominal.signals, ep.dt)
+    # where the start was estimated, the filter is fitted on the rows it was fitted on: later in the dig a twin
+    # from a start the log cannot pin down differs by more than any filter (see estimate_start)
+    trusted = start.rows if start is not None and start.rows else len(shifted)
+    if start is not None and spec.sensor_tau == 0.0:  # fitted jointly with the start
+        tau = start.sensor_tau
+    else:
+        tau = estimate_sensor_tau(_head(shifted.signals, trusted), _head(nominal.signals, trusted), ep.dt)
     rest, undo = _offset(shifted, _filtered(nominal, ep.dt, tau), notes)
     if undo:
         total, applied, offset = total + rest.offset, True, rest
@@ -139,7 +147,7 @@ def align(ep: EpisodeData, spec: TwinSpec, runner: Runner) -> tuple[EpisodeData,
         notes.append(f"time offset between the log's signals and its commands: {total:.3g} s, undone")
     if tau > 0:
         spec = dataclasses.replace(spec, sensor_tau=tau, sensor_taus=_channel_taus(ep, spec, runner, nominal,
-                                                                                  applied))
+                                                                                  applied, trusted))
         notes.append(f"the log's channels went through a first-order sensor filter: tau {tau:.3g} s estimated, "
                      "applied to the twin")
         if spec.sensor_taus:

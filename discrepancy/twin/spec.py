@@ -38,7 +38,8 @@ class TwinSpec:
     has no seed; given values replace what the seed would draw. ``sensor_tau``: time constant (s) of a first-order
     sensor filter the log's channels went through, applied to every twin signal (0: none); ``sensor_taus``:
     ``(channel, time constant s)`` where a channel's own filter differs from ``sensor_tau`` (estimated only where
-    the log shows a common filter, :func:`~discrepancy.twin.align.align`).
+    the log shows a common filter, :func:`~discrepancy.twin.align.align`); ``start_draws``: starts as uncertain as
+    the estimated ``start`` (reset options each), which the null's runs start from (:meth:`null_starts`).
     """
 
     loader: LoaderSpec
@@ -48,6 +49,14 @@ class TwinSpec:
     start: tuple[tuple[str, float], ...] = ()
     sensor_tau: float = 0.0
     sensor_taus: tuple[tuple[str, float], ...] = ()
+    start_draws: tuple[tuple[tuple[str, float], ...], ...] = ()
+
+    def null_starts(self, runs: int) -> list[tuple[tuple[str, float], ...]] | None:
+        """The starts of ``runs`` null runs (cycling through :attr:`start_draws`), or None when the start is not
+        uncertain."""
+        if not self.start_draws:
+            return None
+        return [self.start_draws[k % len(self.start_draws)] for k in range(runs)]
 
     @classmethod
     def from_episode(cls, ep: EpisodeData) -> TwinSpec:
@@ -95,12 +104,14 @@ class TwinSpec:
         seed = doc.get("seed", ep.seed if ep is not None and ep.seed is not None else 0)
         start = tuple(sorted((str(k), float(v)) for k, v in dict(doc.get("start", {})).items()))
         taus = tuple(sorted((str(k), float(v)) for k, v in dict(doc.get("sensor_taus", {})).items()))
-        return cls(loader, soil, kwargs, int(seed), start, float(doc.get("sensor_tau", 0.0)), taus)
+        draws = tuple(tuple(sorted((str(k), float(v)) for k, v in dict(d).items()))
+                      for d in doc.get("start_draws", []))
+        return cls(loader, soil, kwargs, int(seed), start, float(doc.get("sensor_tau", 0.0)), taus, draws)
 
     def to_dict(self) -> dict[str, Any]:
         return {"scale": self.loader.to_dict(), "soil": self.soil.to_dict(), "env_kwargs": dict(self.env_kwargs),
                 "seed": self.seed, "start": dict(self.start), "sensor_tau": self.sensor_tau,
-                "sensor_taus": dict(self.sensor_taus)}
+                "sensor_taus": dict(self.sensor_taus), "start_draws": [dict(d) for d in self.start_draws]}
 
 
 def _scale(value: Any) -> float | str:

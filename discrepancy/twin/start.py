@@ -18,6 +18,13 @@ A pile quantity the log does not see (typically the height: a short dig never re
 in the Jacobian; it stays at its nominal value and is reported in :attr:`StartEstimate.unidentified`.
 Every candidate is a replay; they go through the runner in batches. Whatever seed the user gives, the estimate is
 the same: the options fix every quantity the seed would draw.
+
+A log whose sensors low-pass its channels lags the twin, and a pile met a little earlier makes up for part of that
+lag: fitted on the unfiltered twin, the pile moves nearer, and a filter estimated afterwards against that start
+comes out too slow (held-out case 19 of seed 3, a 200 Hz log filtered at τ 0.15 s: pile 0.10 boom lengths near,
+τ 0.29 s; misfit 2.8 where the true start with τ 0.15 s gives 0.57). With ``profile_filter`` every replay is
+therefore compared through the first-order sensor filter that fits it best (τ profiled out, a cheap scalar
+search on the replay's output: no further replay), so the start and the filter are estimated jointly.
 """
 
 from __future__ import annotations
@@ -30,6 +37,7 @@ import numpy as np
 from discrepancy.context import HUBER, huber
 from discrepancy.data.channels import COMPARED
 from discrepancy.data.episode import EpisodeData
+from discrepancy.data.fieldlog import MIN_TAU_GAIN, best_tau, first_order_filter
 from discrepancy.twin.plant import Plan
 from discrepancy.twin.runner import Runner, Start
 from discrepancy.twin.spec import SimResult
@@ -42,12 +50,17 @@ ANGLES = ("boom_angle", "bucket_angle")
 HEAD_CHANNELS = ("boom_angle", "bucket_pitch", "lift_extension", "tilt_extension")
 #: The pile quantities, in the order of the coarse grid (distance first: it moves the contact most).
 PILE = ("pile_distance", "repose_angle", "pile_height")
+#: Fitted jointly (:func:`_levenberg_marquardt`): the start angles, first solved on the log's first rows alone,
+#: then with the pile on every fitted row (three noisy rows left them a few mrad off, which a null run from the
+#: true start showed as a located window)
+FITTED = (*ANGLES, *PILE)
 COARSE = ("pile_distance", "repose_angle")  # gridded before the joint fit (the height rarely shows; see module)
 HEAD = 3  # control steps replayed to fit the start angles (before the bucket meets the pile)
 NEWTON = 3  # Newton steps for the start angles
+MAX_ANGLE = 0.3  # rad: start angles beyond this leave the linkage unassembled (the env refuses them)
 ANGLE_STEP = 1e-3  # rad, finite-difference step of the angles' Jacobian
 SPAN = 2.0  # searched range, in units of the half-range the env's reset draws
-#: Levenberg–Marquardt iterations (each a batch of 2·len(PILE) Jacobian replays, unless the last step was
+#: Levenberg–Marquardt iterations (each a batch of 2·len(FITTED) Jacobian replays, unless the last step was
 #: rejected, and one of len(DAMPING) trial steps).
 LM_ITERATIONS = 12
 #: Central-difference step, in half-ranges (1.25 % of a boom length in distance, 0.5° in repose angle): the valley
@@ -64,6 +77,22 @@ STEP_TOL = 0.01
 #: in Σr² (residual units: 1 % of a channel's spread): less than one sample moved by 1 % of its spread over the
 #: whole log, i.e. nothing the diagnosis could mistake for a discrepancy.
 SEEN = 1.0
+#: The start is fitted on the rows up to the first contact with the pile and this share of the rows after it. Later,
+#: the dig runs through events (a cylinder stalling at relief, the wheels slipping) whose timing a pile a fraction
+#: of a percent of a boom length nearer moves by whole steps: over the whole log the misfit is a field of needles
+#: (held-out case 19 of seed 3: minima at 0.47 and 0.59 boom lengths, the truth 0.515 a needle 0.005 wide), while
+#: over the first fifth after contact it is one smooth valley at 0.505. What the start leaves uncertain later in
+#: the dig is the null's to cover (:attr:`StartEstimate.spread`). Fitting on these rows also makes each replay
+#: several times shorter.
+EARLY_SHARE = 0.35
+#: The null's runs of a log without seed start from draws around the estimate (:attr:`StartEstimate.draws`): the
+#: pile from the estimate's Laplace covariance (:func:`_covariance`) plus this floor, in half-ranges of the env's
+#: own draw (tuned on the field-log nulls of benchmark seeds 0–2) ...
+START_SPREAD = 0.2
+DRAWS = 8  # draws kept (the null runs cycle through them)
+DRAW_SEED = 47  # the draws are seeded: the same log gives the same null
+RHO_MAX = 0.95  # a lag-1 autocorrelation beyond this inflates no further (20 effective samples lost per one)
+CONTACT = 0.01  # share of the soil resistance's range that marks the first contact
 #: Channels the start is fitted on: the motion, which a pile met a little earlier or later shifts smoothly (the
 #: forces jump at contact and make the misfit a needle around the true start).
 MOTION = ("lift_extension", "tilt_extension", "boom_angle", "bucket_pitch", "travel_speed", "lift_speed",
@@ -81,10 +110,17 @@ class StartEstimate:
     misfit_default: float
     replays: int
     unidentified: tuple[str, ...] = ()
+    #: s: the common sensor filter the start was fitted through (profiled), where it removes at least
+    #: MIN_TAU_GAIN of the misfit (0: none)
+    sensor_tau: float = 0.0
+    rows: int = 0  # the rows the start was fitted on end here (0: all); the rows a filter is fitted on too
+    #: starts the log cannot tell from this one, drawn from the estimate's uncertainty (see :data:`START_SPREAD`)
+    draws: tuple[Start, ...] = ()
 
     def to_dict(self) -> dict[str, object]:
         return {"options": dict(self.options), "misfit": self.misfit, "misfit_default": self.misfit_default,
-                "replays": self.replays, "unidentified": list(self.unidentified)}
+                "replays": self.replays, "unidentified": list(self.unidentified), "sensor_tau_s": self.sensor_tau,
+                "rows": self.rows, "draws": [dict(d) for d in self.draws]}
 
 
 def _nominal(env_kwargs: dict[str, object], soil_repose: float) -> dict[str, tuple[float, float]]:
@@ -100,49 +136,76 @@ def _nominal(env_kwargs: dict[str, object], soil_repose: float) -> dict[str, tup
             "repose_angle": (soil_repose, math.radians(2.0) * max(noise, 0.2))}
 
 
-class _Fit:
-    """The log's motion channels against replays from candidate starts: residual vectors and their misfit."""
+@dataclass(frozen=True)
+class _Probe:
+    """One replay against the log: residuals ``z`` (see :meth:`_Fit.residuals`) and the sensor filter's τ (s)
+    they were computed through."""
 
-    def __init__(self, ep: EpisodeData, runner: Runner, skip: int) -> None:
+    z: np.ndarray
+    tau: float = 0.0
+    filtered: bool = False  # the filter removes at least MIN_TAU_GAIN of the misfit (a sensor filter, not noise)
+
+
+class _Fit:
+    """The log's motion channels against replays from candidate starts: residual vectors and their misfit, each
+    replay through its best-fitting sensor filter when ``profile_filter``."""
+
+    def __init__(self, ep: EpisodeData, runner: Runner, rows: slice, profile_filter: bool = False) -> None:
         names = [s for s in MOTION if s in ep.signals and np.all(np.isfinite(ep.signals[s]))] or \
             [s for s in COMPARED if s in ep.signals and np.all(np.isfinite(ep.signals[s]))]
-        self.ep, self.runner, self.skip, self.names = ep, runner, skip, names
+        self.ep, self.runner, self.rows, self.names = ep, runner, rows, names
         self.scale = np.array([max(0.01 * float(np.ptp(ep.signals[s])), 1e-12) for s in names])
+        self.real = np.stack([ep.signals[s][: rows.stop] for s in names])
+        self.profile_filter = profile_filter
         self.replays = 0
 
-    def residuals(self, result: SimResult) -> np.ndarray | None:
-        """(twin − log) / scale over the rows after ``skip``, flattened; None when the replay failed."""
+    def residuals(self, result: SimResult) -> _Probe | None:
+        """(twin − log) / scale over :attr:`rows`, flattened, the twin through the best first-order sensor filter
+        when profiled; None when the replay failed."""
         if result.error:
             return None
-        z = np.stack([(result.signals[s][self.skip:] - self.ep.signals[s][self.skip:]) / self.scale[j]
-                      for j, s in enumerate(self.names)], axis=1)
-        return np.nan_to_num(z, nan=1e3).ravel()
+        twin = np.stack([result.signals[s][: self.rows.stop] for s in self.names])
 
-    def run(self, starts: list[Start]) -> list[np.ndarray | None]:
-        """Residuals of one replay per start (one batch through the runner)."""
+        def z_at(tau: float) -> np.ndarray:
+            seen = first_order_filter(twin, self.ep.dt, tau)
+            return np.nan_to_num(((seen - self.real) / self.scale[:, None])[:, self.rows].T, nan=1e3).ravel()
+
+        if not self.profile_filter:
+            return _Probe(z_at(0.0))
+        tau, cost, unfiltered = best_tau(lambda t: misfit(z_at(t)), self.ep.dt)
+        return _Probe(z_at(tau), tau, cost <= (1.0 - MIN_TAU_GAIN) * unfiltered)
+
+    def run(self, starts: list[Start]) -> list[_Probe | None]:
+        """One probe per start (one batch of replays of the log's commands up to the fitted rows' end)."""
         self.replays += len(starts)
-        results = self.runner.run_many(self.ep.commands, [Plan()] * len(starts), starts=starts)
+        results = self.runner.run_many(self.ep.commands[: self.rows.stop], [Plan()] * len(starts), starts=starts)
         return [self.residuals(r) for r in results]
 
 
-def misfit(z: np.ndarray | None) -> float:
-    """Mean Huber ρ of residuals ``z`` (units of 1 % of a channel's spread; inf for a failed replay): residuals
-    beyond :data:`~discrepancy.context.HUBER` units count linearly (a discrepancy, not the start)."""
-    return math.inf if z is None else float(np.mean(huber(z)))
+def misfit(z: np.ndarray | _Probe | None) -> float:
+    """Mean Huber ρ of residuals ``z`` (or a probe's; units of 1 % of a channel's spread; inf for a failed
+    replay): residuals beyond :data:`~discrepancy.context.HUBER` units count linearly (a discrepancy, not the
+    start)."""
+    if z is None:
+        return math.inf
+    return float(np.mean(huber(z.z if isinstance(z, _Probe) else z)))
 
 
-def estimate_start(ep: EpisodeData, runner: Runner, skip: int = 0) -> StartEstimate:
+def estimate_start(ep: EpisodeData, runner: Runner, skip: int = 0, profile_filter: bool = False) -> StartEstimate:
     """Reset options for the twin of ``runner`` that best replay ``ep`` (see the module), ignoring its first
-    ``skip`` rows (rows a time offset left without a logged value)."""
+    ``skip`` rows (rows a time offset left without a logged value); with ``profile_filter``, jointly with a
+    first-order sensor filter common to the motion channels (:attr:`StartEstimate.sensor_tau`)."""
     twin = runner.twin
-    fit = _Fit(ep, runner, skip)
     centre = _nominal(dict(twin.env_kwargs), twin.soil.repose_angle)
     current = {k: c for k, (c, _) in centre.items()}
-    default = misfit(fit.run([_start(current)])[0])
+    nominal = runner.run_many(ep.commands, [Plan()], starts=[_start(current)])[0]
+    fit = _Fit(ep, runner, slice(skip, _early_end(nominal, len(ep), skip)), profile_filter)
+    fit.replays += 1
+    default = misfit(fit.residuals(nominal))
     angles_seen = len(_head_channels(ep)) >= len(ANGLES)
     if angles_seen:
         fit.replays += _solve_angles(ep, runner, current, skip)
-    z: np.ndarray | None = None
+    z: _Probe | None = None
     for name in COARSE if angles_seen else (*ANGLES, *COARSE):
         c, half = centre[name]
         grid = np.linspace(c - SPAN * half, c + SPAN * half, GRID)
@@ -150,34 +213,67 @@ def estimate_start(ep: EpisodeData, runner: Runner, skip: int = 0) -> StartEstim
         runs = fit.run([_start({**current, name: float(v)}) for v in grid])
         k = int(np.argmin([misfit(r) for r in runs]))
         z, current[name] = runs[k], float(grid[k])
-    best, unidentified = _levenberg_marquardt(fit, centre, current, z)
-    return StartEstimate(_start(current), float(best), float(default), fit.replays, unidentified)
+    z, unseen, cov = _levenberg_marquardt(fit, centre, current, z)
+    unidentified = tuple(k for k in unseen if k in PILE)
+    draws = _draws(centre, current, cov)
+    return StartEstimate(_start(current), misfit(z), float(default), fit.replays, unidentified,
+                         z.tau if z is not None and z.filtered else 0.0, int(fit.rows.stop), draws)
+
+
+def _bounds(centre: dict[str, tuple[float, float]]) -> tuple[np.ndarray, np.ndarray]:
+    """Bounds of :data:`FITTED` in half-range units: the pile within :data:`SPAN` of its nominal value, the angles
+    within ±:data:`MAX_ANGLE` rad (solved on the first rows first, they may lie outside what the env draws)."""
+    lo, hi = np.full(len(FITTED), -SPAN), np.full(len(FITTED), SPAN)
+    for j, k in enumerate(FITTED):
+        if k in ANGLES:
+            mid, half = centre[k]
+            lo[j], hi[j] = (-MAX_ANGLE - mid) / half, (MAX_ANGLE - mid) / half
+    return lo, hi
+
+
+def _draws(centre: dict[str, tuple[float, float]], current: dict[str, float], cov: np.ndarray) -> tuple[Start, ...]:
+    """:data:`DRAWS` starts around ``current``: :data:`FITTED` from a normal with covariance ``cov`` (half-range
+    units, :data:`FITTED` order); seeded, within :func:`_bounds`."""
+    rng = np.random.default_rng(DRAW_SEED)
+    half = np.array([centre[k][1] for k in FITTED])
+    mid = np.array([centre[k][0] for k in FITTED])
+    u = np.array([(current[k] - centre[k][0]) / centre[k][1] for k in FITTED])
+    w, v = np.linalg.eigh(0.5 * (cov + cov.T))
+    root = v * np.sqrt(np.clip(w, 0.0, None))
+    out = []
+    for _ in range(DRAWS):
+        drawn = np.clip(u + root @ rng.standard_normal(len(FITTED)), *_bounds(centre))
+        values = {**current, **dict(zip(FITTED, (mid + half * drawn).tolist(), strict=True))}
+        out.append(_start(values))
+    return tuple(out)
 
 
 def _levenberg_marquardt(fit: _Fit, centre: dict[str, tuple[float, float]], current: dict[str, float],
-                         z: np.ndarray | None) -> tuple[float, tuple[str, ...]]:
-    """Joint Levenberg–Marquardt over :data:`PILE` from ``current`` (residuals ``z`` there; updated in place), in
-    units of each quantity's half-range, kept within :data:`SPAN` of the nominal value; IRLS weights for Huber's ρ.
-    Returns the misfit reached and the quantities the log does not see (:data:`SEEN`)."""
-    half = np.array([centre[k][1] for k in PILE])
-    mid = np.array([centre[k][0] for k in PILE])
+                         probe: _Probe | None) -> tuple[_Probe | None, tuple[str, ...], np.ndarray]:
+    """Joint Levenberg–Marquardt over :data:`FITTED` from ``current`` (``probe`` there; updated in place), in units
+    of each quantity's half-range, kept within :func:`_bounds`; IRLS weights for Huber's ρ.
+    Returns the probe reached, the quantities the log does not see (:data:`SEEN`) and the estimate's covariance
+    (half-range units; see :func:`_covariance`)."""
+    half = np.array([centre[k][1] for k in FITTED])
+    mid = np.array([centre[k][0] for k in FITTED])
 
     def start_at(u: np.ndarray) -> Start:
-        return _start({**current, **dict(zip(PILE, (mid + half * u).tolist(), strict=True))})
+        return _start({**current, **dict(zip(FITTED, (mid + half * u).tolist(), strict=True))})
 
-    u = np.array([(current[k] - centre[k][0]) / centre[k][1] for k in PILE])
-    best, lam, seen = misfit(z), LAMBDA0, np.zeros(len(PILE), dtype=bool)
+    u = np.array([(current[k] - centre[k][0]) / centre[k][1] for k in FITTED])
+    best, lam, seen = misfit(probe), LAMBDA0, np.zeros(len(FITTED), dtype=bool)
     jac: np.ndarray | None = None
     for _ in range(LM_ITERATIONS):
-        if z is None:
+        if probe is None:
             break
+        z = probe.z
         if jac is None:  # a new point: its Jacobian (kept while trial steps from it are rejected)
-            eye = np.eye(len(PILE))
+            eye = np.eye(len(FITTED))
             runs = fit.run([start_at(u + FD_STEP * e) for e in eye] + [start_at(u - FD_STEP * e) for e in eye])
-            probes = [p for p in runs if p is not None]
+            probes = [p.z for p in runs if p is not None]
             if len(probes) < len(runs):
                 break
-            n = len(PILE)
+            n = len(FITTED)
             jac = np.stack([(probes[i] - probes[n + i]) / (2 * FD_STEP) for i in range(n)], axis=1)
             seen |= np.sum(jac**2, axis=0) >= SEEN
         if not seen.any():
@@ -187,9 +283,9 @@ def _levenberg_marquardt(fit: _Fit, centre: dict[str, tuple[float, float]], curr
         g = jac[:, seen].T @ (w * z)
         trials = []
         for f in DAMPING:
-            step = np.zeros(len(PILE))
+            step = np.zeros(len(FITTED))
             step[seen] = -np.linalg.solve(a + lam * f * np.diag(np.diag(a)), g)
-            trials.append(np.clip(u + step, -SPAN, SPAN))
+            trials.append(np.clip(u + step, *_bounds(centre)))
         results = fit.run([start_at(t) for t in trials])
         costs = [misfit(r) for r in results]
         k = int(np.argmin(costs))
@@ -199,11 +295,54 @@ def _levenberg_marquardt(fit: _Fit, centre: dict[str, tuple[float, float]], curr
             lam *= DAMPING[-1] ** 2  # no trial helped: damp harder (shorter steps) from the same point
             continue
         done = float(np.max(np.abs(trials[k] - u))) < STEP_TOL
-        u, z, best, lam, jac = trials[k], results[k], costs[k], lam * DAMPING[k], None
+        u, probe, best, lam, jac = trials[k], results[k], costs[k], lam * DAMPING[k], None
         if done:
             break
-    current.update(zip(PILE, (mid + half * u).tolist(), strict=True))
-    return best, tuple(k for k, s in zip(PILE, seen, strict=True) if not s)
+    current.update(zip(FITTED, (mid + half * u).tolist(), strict=True))
+    if probe is not None and jac is None:  # the Jacobian where the fit ended, for the covariance
+        eye = np.eye(len(FITTED))
+        runs = fit.run([start_at(u + FD_STEP * e) for e in eye] + [start_at(u - FD_STEP * e) for e in eye])
+        if all(r is not None for r in runs):
+            n = len(FITTED)
+            jac = np.stack([(runs[i].z - runs[n + i].z) / (2 * FD_STEP) for i in range(n)], axis=1)  # type: ignore[union-attr]
+            seen |= np.sum(jac**2, axis=0) >= SEEN
+    cov = _covariance(probe, jac, seen, len(fit.names))
+    return probe, tuple(k for k, s in zip(FITTED, seen, strict=True) if not s), cov
+
+
+def _covariance(probe: _Probe | None, jac: np.ndarray | None, seen: np.ndarray, channels: int) -> np.ndarray:
+    """Laplace covariance of the pile estimate (half-range units): s²·(JᵀWJ)⁻¹ over the seen quantities, s² the
+    weighted residual variance times the variance inflation of its lag-1 autocorrelation (the residual of a
+    coloured or filtered log is far from independent), at least :data:`START_SPREAD` half-ranges each (the
+    valley's floor is bumpy, see :data:`FD_STEP`); an unseen quantity (or no fit) gets :data:`SPAN`."""
+    n = len(FITTED)
+    cov = np.diag(np.full(n, SPAN**2))
+    if probe is None or jac is None or not seen.any():
+        return cov
+    z = probe.z
+    w = np.minimum(1.0, HUBER / np.maximum(np.abs(z), 1e-12))
+    rows = z.reshape(-1, channels)
+    rho = [float(np.corrcoef(c[:-1], c[1:])[0, 1]) for c in rows.T if len(c) > 2 and np.std(c) > 0]
+    r = float(np.clip(np.nanmean(rho), 0.0, RHO_MAX)) if rho else 0.0
+    s2 = float(np.sum(w * z * z) / max(len(z) - n, 1)) * (1.0 + r) / (1.0 - r)
+    a = jac[:, seen].T @ (w[:, None] * jac[:, seen])
+    sub = s2 * np.linalg.pinv(a) + np.diag(np.full(int(seen.sum()), START_SPREAD**2))
+    cov[np.ix_(seen, seen)] = sub
+    return cov
+
+
+def _early_end(nominal: SimResult, rows: int, skip: int) -> int:
+    """End of the rows the start is fitted on: the first contact with the pile in the nominal replay (the soil
+    resistance ``R_x`` departs from its start by :data:`CONTACT` of its range), then :data:`EARLY_SHARE` of the
+    rows after it; all rows when the replay failed or never meets the pile."""
+    r = nominal.signals.get("R_x")
+    if nominal.error or r is None or len(r) < rows or not np.all(np.isfinite(r[:rows])) or np.ptp(r[:rows]) <= 0:
+        return rows
+    moved = np.flatnonzero(np.abs(r[:rows] - r[0]) > CONTACT * np.ptp(r[:rows]))
+    if len(moved) == 0:
+        return rows
+    contact = int(moved[0])
+    return min(rows, max(skip + HEAD + 1, contact + int(np.ceil(EARLY_SHARE * (rows - contact)))))
 
 
 def _solve_angles(ep: EpisodeData, runner: Runner, current: dict[str, float], skip: int = 0) -> int:
@@ -228,7 +367,7 @@ def _solve_angles(ep: EpisodeData, runner: Runner, current: dict[str, float], sk
         y = [(np.array([r.signals[c][rows] for c in names]) / scale).ravel() for r in results]
         jac = np.stack([(y[1] - y[0]) / ANGLE_STEP, (y[2] - y[0]) / ANGLE_STEP], axis=1)
         step, *_ = np.linalg.lstsq(jac, target - y[0], rcond=None)
-        x = np.clip(x + step, -0.3, 0.3)
+        x = np.clip(x + step, -MAX_ANGLE, MAX_ANGLE)
         current["boom_angle"], current["bucket_angle"] = float(x[0]), float(x[1])
         if np.max(np.abs(step)) < 1e-5:
             break
