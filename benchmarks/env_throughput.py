@@ -15,16 +15,24 @@ same load at the scale of a millisecond, which the 2 shared cores this runs on n
 and of one whole dig timed end to end (``rollout.run_episode``), fastest repeat, which the machine's load slows
 down as a whole. The bound is ``mj_step`` alone (timestep × raw steps per second).
 
-**Timestep convergence.** Why the physics timestep stays Froude-scaled (1 ms × √λ), which bounds the mini's
-real-time factor: F21 of the scripted dig at the timestep × 1/2 and × 2 (control step, soil refresh period and
-constraint time constant unchanged in seconds), the Froude run's commands replayed open loop, against the Froude
-run; mean absolute percentage difference over the dig rows (penetrate, curl, lift). A timestep may be called a
-numerical choice only where it moves F21 by < 1 % (``tests/envs/test_env_speed.py``).
+**Timestep convergence.** Whether the default physics timestep (the Froude step 1 ms × √λ divided into
+``scaletwin_envs.builder.timestep_substeps`` parts: 3 at the mini, 1 at the ER12 and the WA475), which bounds the
+real-time factor, is converged: F21 of the scripted dig at the timestep × 1/2 and × 2 (``gym.make(...,
+timestep=...)``: control step, soil refresh period and constraint time constant unchanged in seconds), the default
+run's commands replayed open loop, against the default run; mean absolute percentage difference over the dig rows
+(penetrate, curl, lift). A timestep may be called a numerical choice only where it moves F21 by < 1 %
+(``tests/envs/test_env_speed.py``).
+
+**Servo sweep** (``--servo-sweep``, about 3 min): where the rule's constant comes from
+(``scaletwin_envs.builder.MAX_STEPS_PER_SERVO_TAU``). For 26 machines (the presets, the product-line law at λ 0.1-2.5,
+the Froude law at 1/7, design-space samples) the scripted dig is run at the Froude step and its commands replayed
+at the Froude step / n; each n's F21 over the dig rows is scored against n's half step (2n), and the pairs are
+binned by the timestep's ratio to the tilt servo's time constant.
 
 ``--baseline DIR`` also measures another checkout of ``scaletwin_envs`` (e.g. ``git archive REV scaletwin_envs |
 tar -x -C DIR``) in the same run: every repeat measures each tree in turn, in fresh processes.
 
-Run: ``python benchmarks/env_throughput.py [--repeats N] [--baseline DIR] [--out FILE]`` (default FILE:
+Run: ``python benchmarks/env_throughput.py [--repeats N] [--baseline DIR] [--servo-sweep] [--out FILE]`` (default FILE:
 ``benchmarks/results/env_throughput.md``).
 """
 
@@ -32,6 +40,7 @@ from __future__ import annotations
 
 import argparse
 import datetime as dt
+import itertools
 import json
 import os
 import platform
@@ -44,6 +53,8 @@ ROOT = Path(__file__).resolve().parents[1]
 SCALES = ("mini", "er12", "wa475")
 DIG_PHASES = ("penetrate", "curl", "lift")  # rows over which the timestep convergence is scored
 TIMESTEP_FACTORS = (0.5, 2.0)
+SWEEP_PARTS = (1, 2, 3, 4, 6, 8)  # Froude step / n scored against / 2n
+SWEEP_BINS = (0.0, 10.0, 20.0, 30.0, float("inf"))  # timestep / tilt-servo time constant
 
 
 def measure(scale: str, repeats: int) -> dict[str, float]:
@@ -121,40 +132,35 @@ def measure(scale: str, repeats: int) -> dict[str, float]:
 
 
 def _env_at(scale: str, factor: float):  # -> gymnasium.Env (gymnasium is imported lazily)
-    """The dig env with the physics timestep × ``factor``: frame_skip and the soil refresh count scaled so the
-    control step and the soil refresh period stay the same in seconds, the constraint time constant kept."""
+    """The dig env with the physics timestep × ``factor`` (its ``timestep`` keyword: frame_skip and the soil refresh
+    count follow, so the control step and the soil refresh period stay the same in seconds)."""
     import gymnasium as gym
 
     import scaletwin_envs
-    from scaletwin_envs import builder
-    from scaletwin_envs.envs import loader_base
+    from scaletwin_envs.builder import BuildOptions
+    from scaletwin_envs.specs.loader import make_loader
 
-    froude = builder.BuildOptions.for_spec
-
-    def for_spec(spec: object) -> builder.BuildOptions:
-        o = froude(spec)
-        return builder.BuildOptions(o.timestep * factor, o.constraint_timeconst, o.constraint_width)
-
-    loader_base.BuildOptions.for_spec = for_spec  # the env reads it at construction only
-    try:
-        return gym.make(scaletwin_envs.ENV_ID, scale=scale, frame_skip=round(100 / factor),
-                        external_force_substeps=round(20 / factor))
-    finally:
-        loader_base.BuildOptions.for_spec = froude
+    return gym.make(scaletwin_envs.ENV_ID, scale=scale,
+                    timestep=factor * BuildOptions.for_spec(make_loader(scale)).timestep)
 
 
 def convergence(scale: str) -> dict[str, float]:
     """F21 MAPE (%) and median relative difference (%) over the dig rows at each of :data:`TIMESTEP_FACTORS`
-    against the Froude timestep, commands replayed open loop."""
+    against the default timestep, commands replayed open loop; the default's substeps and its tilt-servo ratio."""
     import numpy as np
 
+    from scaletwin_envs.builder import froude_timestep, servo_time_constant, timestep_substeps
     from scaletwin_envs.policies import ScriptedDigPolicy
     from scaletwin_envs.rollout import run_episode
+    from scaletwin_envs.specs.loader import make_loader
 
+    spec = make_loader(scale)
+    n = timestep_substeps(spec)
     ref = run_episode(_env_at(scale, 1.0), ScriptedDigPolicy(), seed=0)
     rows = [k for k, info in enumerate(ref.infos) if info["phase"] in DIG_PHASES]
     f21 = ref.signal("F21")[rows]
-    out: dict[str, float] = {"peak_F21": float(np.abs(f21).max())}
+    out: dict[str, float] = {"peak_F21": float(np.abs(f21).max()), "substeps": float(n),
+                             "servo_ratio": froude_timestep(spec) / n / servo_time_constant(spec, "tilt")}
     for factor in TIMESTEP_FACTORS:
         env = _env_at(scale, factor)
         env.reset(seed=0)
@@ -163,6 +169,70 @@ def convergence(scale: str) -> dict[str, float]:
         out[f"mape_{factor}"] = float(rel.mean() * 100)
         out[f"median_{factor}"] = float(np.median(rel) * 100)
     return out
+
+
+def sweep_machines() -> list[tuple[str, object]]:
+    """The sweep's machines: (name, LoaderSpec)."""
+    from scaletwin_envs.design_space import DesignSpace
+    from scaletwin_envs.specs.loader import make_loader
+
+    out: list[tuple[str, object]] = [(p, make_loader(p)) for p in SCALES]
+    out += [(f"product line λ {lam:g}", make_loader(lam)) for lam in (0.1, 0.143, 0.2, 0.3, 0.5, 0.75, 1.5, 2.5)]
+    out.append(("Froude law λ 1/7", make_loader(1 / 7, "froude")))
+    out += [(f"pl0-{i}", DesignSpace().sample_one(0, i).spec) for i in range(8)]
+    out += [(f"pl1-{i} (λ 0.08-0.4)", DesignSpace(scale=(0.08, 0.4)).sample_one(1, i).spec) for i in range(6)]
+    return out
+
+
+def n_sweep_machines() -> int:
+    return len(sweep_machines())
+
+
+def servo_sweep(index: int) -> dict[str, object]:
+    """Machine ``index`` of :func:`sweep_machines`: its tilt-servo ratio at the Froude step, the rule's parts, and the
+    F21 MAPE (%) over the dig rows of the Froude step / n against / 2n for n in :data:`SWEEP_PARTS` (the Froude run's
+    commands replayed open loop)."""
+    import gymnasium as gym
+    import numpy as np
+
+    import scaletwin_envs
+    from scaletwin_envs.builder import froude_timestep, servo_time_constant, timestep_substeps
+    from scaletwin_envs.policies import ScriptedDigPolicy
+    from scaletwin_envs.rollout import run_episode
+
+    name, spec = sweep_machines()[index]
+    froude = froude_timestep(spec)
+
+    def env(parts: int):  # -> gymnasium.Env
+        return gym.make(scaletwin_envs.ENV_ID, scale=spec, timestep=froude / parts)
+
+    ref = run_episode(env(1), ScriptedDigPolicy(), seed=0)
+    rows = [k for k, info in enumerate(ref.infos) if info["phase"] in DIG_PHASES]
+    f21: dict[int, np.ndarray] = {}
+    for parts in sorted({n for n in SWEEP_PARTS} | {2 * n for n in SWEEP_PARTS}):
+        e = env(parts)
+        e.reset(seed=0)
+        f21[parts] = np.array([e.step(a)[4]["signals"]["F21"] for a in ref.actions])[rows]
+    return {"name": name, "scale": spec.scale, "ratio": froude / servo_time_constant(spec, "tilt"),
+            "rule": timestep_substeps(spec),
+            "mape": {n: float(np.mean(np.abs(f21[2 * n] - f21[n]) / np.abs(f21[n])) * 100) for n in SWEEP_PARTS}}
+
+
+def sweep_table(sweep: list[dict]) -> list[str]:
+    lines = ["| machine | λ | Froude step / tilt-servo τ | rule's parts | "
+             + " | ".join(f"F21 MAPE, step / {n} vs / {2 * n}" for n in SWEEP_PARTS) + " |",
+             "|---|---|---|---|" + "---|" * len(SWEEP_PARTS)]
+    for s in sweep:
+        cells = [f"**{s['mape'][n]:.2f} %**" if n == s["rule"] else f"{s['mape'][n]:.2f} %" for n in SWEEP_PARTS]
+        lines.append(f"| {s['name']} | {s['scale']:.3f} | {s['ratio']:.1f} | {s['rule']} | " + " | ".join(cells) + " |")
+    lines += ["", "| timestep / tilt-servo τ | (machine, step) pairs | halving moves F21 by < 1 % |", "|---|---|---|"]
+    for lo, hi in itertools.pairwise(SWEEP_BINS):
+        pairs = [s["mape"][n] < 1.0 for s in sweep for n in SWEEP_PARTS if lo <= s["ratio"] / n < hi]
+        if pairs:
+            lines.append(f"| {lo:g}-{hi:g} | {len(pairs)} | {sum(pairs)} ({100 * sum(pairs) / len(pairs):.0f} %) |")
+    ruled = [s["mape"][s["rule"]] < 1.0 for s in sweep if s["rule"] in SWEEP_PARTS]
+    lines += ["", f"At the rule's step (bold): {sum(ruled)} of {len(ruled)} machines converged."]
+    return lines
 
 
 def in_subprocess(tree: Path, call: str) -> dict[str, float]:
@@ -187,11 +257,13 @@ def table(results: dict[str, dict[str, float]]) -> list[str]:
 
 
 def convergence_table(conv: dict[str, dict[str, float]]) -> list[str]:
-    lines = ["| preset | peak F21 [N] | F21 MAPE, timestep × 1/2 | median | F21 MAPE, timestep × 2 | median |",
-             "|---|---|---|---|---|---|"]
+    lines = ["| preset | Froude step / timestep | timestep / tilt-servo τ | peak F21 [N] | F21 MAPE, timestep × 1/2 | "
+             "median | F21 MAPE, timestep × 2 | median |",
+             "|---|---|---|---|---|---|---|---|"]
     for scale, c in conv.items():
-        lines.append(f"| {scale} | {c['peak_F21']:,.0f} | {c['mape_0.5']:.2f} % | {c['median_0.5']:.2f} % | "
-                     f"{c['mape_2.0']:.2f} % | {c['median_2.0']:.2f} % |")
+        lines.append(f"| {scale} | {c['substeps']:.0f} | {c['servo_ratio']:.1f} | {c['peak_F21']:,.0f} | "
+                     f"{c['mape_0.5']:.2f} % | {c['median_0.5']:.2f} % | {c['mape_2.0']:.2f} % | "
+                     f"{c['median_2.0']:.2f} % |")
     return lines
 
 
@@ -200,6 +272,7 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=10, help="episodes per measurement (fastest kept)")
     ap.add_argument("--baseline", type=Path, default=None, help="another checkout's root, measured side by side")
     ap.add_argument("--baseline-label", default="baseline")
+    ap.add_argument("--servo-sweep", action="store_true", help="also run the timestep sweep over 26 machines")
     ap.add_argument("--out", default="benchmarks/results/env_throughput.md")
     args = ap.parse_args()
     import mujoco
@@ -216,6 +289,12 @@ def main() -> None:
         for label, tree in trees.items():  # each tree in turn: both see the same load
             results[label][scale] = in_subprocess(tree, f"measure({scale!r}, {args.repeats})")
     conv = {scale: in_subprocess(ROOT, f"convergence({scale!r})") for scale in SCALES}
+    sweep: list[dict] = []
+    if args.servo_sweep:
+        n_machines = int(in_subprocess(ROOT, "n_sweep_machines()"))
+        sweep = [in_subprocess(ROOT, f"servo_sweep({k})") for k in range(n_machines)]
+        for s in sweep:
+            s["mape"] = {int(n): v for n, v in s["mape"].items()}  # JSON keys are strings
     load_after = os.getloadavg()
     minutes = (dt.datetime.now(dt.UTC) - started).total_seconds() / 60
     lines = [f"# env_throughput ({started:%Y-%m-%d %H:%M} UTC, {host_line()}, python {platform.python_version()}, "
@@ -234,9 +313,17 @@ def main() -> None:
         lines += [*table(per_scale), ""]
     lines += ["## Timestep convergence (this tree)", "",
               "F21 of the scripted dig at the physics timestep × 1/2 and × 2 (control step, soil refresh and "
-              "constraint time constant unchanged in seconds; the Froude run's commands replayed open loop) against "
-              "the Froude timestep (1 ms × √λ), over the dig rows (penetrate, curl, lift). A larger timestep would be "
-              "a numerical choice only if it moved F21 by < 1 %.", "", *convergence_table(conv), ""]
+              "constraint time constant unchanged in seconds; the default run's commands replayed open loop) against "
+              "the default timestep (the Froude step 1 ms × √λ over `builder.timestep_substeps`, which keeps it "
+              "within 21 tilt-servo time constants), over the dig rows (penetrate, curl, lift). A timestep is "
+              "converged where halving it moves F21 by < 1 %; a larger one would be a numerical choice only if it "
+              "moved F21 by < 1 % too.", "", *convergence_table(conv), ""]
+    if sweep:
+        lines += ["## Timestep against the tilt servo's time constant (this tree)", "",
+                  "Each machine's scripted dig at its Froude step, the commands replayed at the Froude step / n and "
+                  "/ 2n; F21 MAPE over the dig rows of n against 2n. τ: the tilt slide's inertia (armature + rod) "
+                  "over its velocity servo's gain (`builder.servo_time_constant`). The rule's parts "
+                  "(`builder.timestep_substeps`) keep the timestep within 21 τ.", "", *sweep_table(sweep), ""]
     text = "\n".join(lines) + "\n"
     print(text)
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)

@@ -2,7 +2,8 @@
 
 The model is assembled in the reference pose (boom lowered, bucket floor on the ground) where every joint
 is at zero and every loop closure is satisfied. Lengths, masses, stiffness and time constants all follow the
-spec, so the same code builds an 11 kg RC miniature and an 80 t loader; the timestep follows √λ (Froude time).
+spec, so the same code builds an 11 kg RC miniature and an 80 t loader. The timestep is the Froude step (1 ms × √λ)
+divided into as many equal parts as the tilt cylinder's velocity servo needs (:func:`timestep_substeps`).
 
 Names other modules rely on: bodies ``frame``, ``boom``, ``bucket``, ``payload``, ``bell_crank``, ``link_b``,
 ``lift_barrel``, ``lift_rod``, ``tilt_barrel``, ``tilt_rod``; joints ``drive``, ``boom_hinge``,
@@ -20,10 +21,10 @@ import mujoco
 import numpy as np
 
 from scaletwin_envs.physics.mass_layout import ROD_FRACTION, BodyLayout, chassis_com, cylinder_axis, linkage_layout
-from scaletwin_envs.specs.loader import GRAVITY, LoaderSpec
+from scaletwin_envs.specs.loader import GRAVITY, CylinderSpec, LoaderSpec
 
 HINGE_AXIS = (0.0, -1.0, 0.0)  # positive angles turn x towards z: boom up, bucket curled back
-BASE_TIMESTEP = 1e-3  # s at the ER12 (λ = 1); scaled by √λ
+BASE_TIMESTEP = 1e-3  # s: the Froude step at the ER12 (λ = 1), scaled by √λ; the constraint time constants follow it
 SERVO_DROOP = 0.01  # a cylinder at relief force slips at this fraction of its rated speed (velocity servo gain)
 # Reflected inertia on each cylinder's slide, as a fraction of boom + bucket + rated load (kg): stands for the oil
 # column and keeps MuJoCo's constraint solver well conditioned when a stiff velocity servo drives a light rod
@@ -36,6 +37,62 @@ CYLINDER_ARMATURE = 1.0
 # otherwise drops, and without which a stalled bucket chatters.
 CYLINDER_DAMPING = 0.1
 PILE_COLUMNS = 48  # visual boxes drawing the pile surface
+# Most physics steps per tilt-servo time constant τ (slide inertia over servo gain, servo_time_constant). While a
+# servo is clamped at relief MuJoCo integrates its force explicitly (it drops the servo's implicit damping), and one
+# step changes the slide's speed by up to dt / τ times the speed band in which the servo is unclamped; the servo can
+# then lock into a relay between its extend and retract limits, switching every physics step (a cycle of p steps
+# can miss the band only if dt / τ > p), which moves the dig's pin forces. At the mini's Froude step (dt / τ = 54)
+# the tilt relays 19 times per 100 steps over the scripted dig and F21 is 10 % off its value at a third of the step
+# (0.4 relays per 100 steps; halving that moves F21 by 0.6 %). The lift servo, whose load stays on one side of its
+# band, relayed at most 0.35 times per 100 steps in the digs checked. 21 is the ER12's own ratio (20.9) at its Froude
+# step, where its dig is converged (halving the step moves F21 by 0.2 %), so the ER12 and the WA475 (13.5) keep
+# their Froude steps and recordings. It bounds the relay but is no guarantee: whether a dig locks in at a given
+# ratio depends on its load history. Over 26 machines (presets, product-line law, design-space samples, λ 0.1-2.5)
+# at 6 steps each, halving the step moved F21 by < 1 % in 96 % of the (machine, step) pairs at ratios < 10, 74 % at
+# 10-20, 47 % at 20-30, none above 30; at this rule's steps 16 of the 26 converged, at ratios <= 10 (3 times the
+# ER12's cost) 23 (benchmarks/env_throughput.py --servo-sweep, benchmarks/results/env_throughput.md).
+MAX_STEPS_PER_SERVO_TAU = 21.0
+# Bounds on a timestep passed explicitly, as fractions of the Froude step: at most 2, where the constraint time
+# constant (4 Froude steps) reaches MuJoCo's floor of 2 timesteps (beyond it MuJoCo softens every loop and contact
+# silently); at least 1/1000, where one scripted dig already costs minutes of CPU (a smaller value is a unit error).
+TIMESTEP_RANGE = (1e-3, 2.0)
+
+
+def froude_timestep(spec: LoaderSpec) -> float:
+    """The Froude step, s: 1 ms × √λ (the control step and the soil refresh period are counted in it)."""
+    return BASE_TIMESTEP * math.sqrt(spec.scale)
+
+
+def servo_gain(cylinder: CylinderSpec) -> float:
+    """Gain of a cylinder's velocity servo, N·s/m: relief force over the slip speed :data:`SERVO_DROOP` allows."""
+    return cylinder.max_extend_force / (SERVO_DROOP * cylinder.extend_speed)
+
+
+def servo_time_constant(spec: LoaderSpec, which: str = "tilt", armature_factor: float = 1.0) -> float:
+    """Time constant of a cylinder's velocity servo, s: the inertia on its slide (armature, times
+    ``armature_factor`` where an env enlarges it, plus the rod) over the servo gain."""
+    cyl = spec.lift if which == "lift" else spec.tilt
+    return (armature_factor * cylinder_armature(spec) + cyl.rod_mass) / servo_gain(cyl)
+
+
+def timestep_substeps(spec: LoaderSpec, tilt_armature_factor: float = 1.0) -> int:
+    """Parts the Froude step is divided into: the fewest that keep the timestep within
+    :data:`MAX_STEPS_PER_SERVO_TAU` tilt-servo time constants (1 for the ER12 and the WA475, 3 for the mini)."""
+    ratio = froude_timestep(spec) / servo_time_constant(spec, "tilt", tilt_armature_factor)
+    return max(1, math.ceil(ratio / MAX_STEPS_PER_SERVO_TAU - 1e-9))
+
+
+def check_timestep(spec: LoaderSpec, timestep: float) -> float:
+    """``timestep`` (s) as a float if it is a finite number within :data:`TIMESTEP_RANGE` Froude steps; else
+    ``ValueError``."""
+    froude = froude_timestep(spec)
+    lo, hi = (f * froude for f in TIMESTEP_RANGE)
+    ok = isinstance(timestep, int | float) and not isinstance(timestep, bool) and math.isfinite(timestep)
+    if not (ok and lo <= timestep <= hi):
+        raise ValueError(f"timestep must be a number of seconds in [{lo:.3g}, {hi:.3g}] for {spec.name!r} "
+                         f"({TIMESTEP_RANGE[0]:g} to {TIMESTEP_RANGE[1]:g} times its Froude step of {froude:.3g} s), "
+                         f"got {timestep!r}")
+    return float(timestep)
 
 
 @dataclass(frozen=True)
@@ -47,9 +104,18 @@ class BuildOptions:
     constraint_width: float  # m: solimp transition width, scaled with the machine so similarity holds
 
     @classmethod
-    def for_spec(cls, spec: LoaderSpec) -> BuildOptions:
-        dt = BASE_TIMESTEP * math.sqrt(spec.scale)
-        return cls(timestep=dt, constraint_timeconst=4.0 * dt, constraint_width=1e-3 * spec.characteristic_length)
+    def for_spec(cls, spec: LoaderSpec, timestep: float | None = None, tilt_armature_factor: float = 1.0
+                 ) -> BuildOptions:
+        """The options of ``spec``: ``timestep`` (s; None: the Froude step over :func:`timestep_substeps`, with the
+        tilt slide's armature × ``tilt_armature_factor`` as built) and constraint time constants of 4 Froude steps
+        whatever the timestep (the loops' and contacts' softness is physics, the same at every timestep)."""
+        froude = froude_timestep(spec)
+        if timestep is None:
+            dt = froude / timestep_substeps(spec, tilt_armature_factor)
+        else:
+            dt = check_timestep(spec, timestep)
+        return cls(timestep=dt, constraint_timeconst=4.0 * froude,
+                   constraint_width=1e-3 * spec.characteristic_length)
 
     @property
     def solimp(self) -> list[float]:
@@ -245,7 +311,7 @@ def _equalities(s: mujoco.MjSpec, opt: BuildOptions) -> None:
 def _actuators(s: mujoco.MjSpec, spec: LoaderSpec) -> None:
     for which, cyl in (("lift", spec.lift), ("tilt", spec.tilt)):
         act = s.add_actuator(name=which, target=f"{which}_cylinder", trntype=mujoco.mjtTrn.mjTRN_JOINT)
-        act.set_to_velocity(kv=cyl.max_extend_force / (SERVO_DROOP * cyl.extend_speed))
+        act.set_to_velocity(kv=servo_gain(cyl))
         act.ctrlrange = [-cyl.retract_speed, cyl.extend_speed]
         act.forcelimited = True
         act.forcerange = [-cyl.max_retract_force, cyl.max_extend_force]

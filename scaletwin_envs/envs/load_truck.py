@@ -58,6 +58,12 @@ outside pile and truck), idle.
 
 Version history:
     v0 (2026-11-26): initial release.
+    v0 (2026-11-26, dynamics changed where the timestep did): the default timestep follows ``WheelLoaderDig-v0``'s
+    rule (:func:`scaletwin_envs.builder.timestep_substeps`) with the variant's tilt slide as built (its oil column
+    included): the ER12's Froude step in 2 parts (0.5 ms; the ratio is 21.1 against the rule's 21), the mini's in 3
+    (0.126 ms), the WA475's whole. The first pass's dig is not converged at these steps: halving them moves its
+    F21 by 2.8 % (ER12), 1.7 % (mini), 2.4 % (WA475), where a quarter of the Froude step gives 0.12 %, 0.48 %,
+    0.57 % (scripted cycle, seed 0, commands replayed open loop); the tilt servo relays at relief (known limit).
 """
 
 from __future__ import annotations
@@ -72,7 +78,6 @@ from gymnasium import spaces
 
 from scaletwin_envs.builder import build_spec
 from scaletwin_envs.envs.dump_linkage import bucket_stops, dump_capable
-from scaletwin_envs.envs.loader_base import DEFAULT_EXTERNAL_FORCE_SUBSTEPS, DEFAULT_FRAME_SKIP
 from scaletwin_envs.envs.phases import DigPhase
 from scaletwin_envs.envs.wheel_loader_dig import OBS_INDEX as DIG_INDEX
 from scaletwin_envs.envs.wheel_loader_dig import OBS_LIMIT, WheelLoaderDigEnv
@@ -175,7 +180,8 @@ class WheelLoaderLoadTruckEnv(WheelLoaderDigEnv):
 
     Args:
         scale, law, distortion, soil, pile_distance, pile_height, frame_skip, external_force_substeps,
-            two_route_check, render_mode, width, height: as in ``WheelLoaderDig-v0``.
+            two_route_check, render_mode, width, height, timestep: as in ``WheelLoaderDig-v0`` (the default timestep
+            reads the variant's tilt slide with its oil column, see ``_tilt_oil_ratio``).
         dump_linkage: build the dump-capable tilt linkage (:func:`dump_capable`); False keeps the machine's own,
             which cannot dump above ground height.
         truck_distance: cutting edge at the start to the outside of the truck's near wall, along the truck leg, L.
@@ -215,12 +221,13 @@ class WheelLoaderLoadTruckEnv(WheelLoaderDigEnv):
         energy_cost_weight: float = 0.02,
         spill_cost_weight: float = 1.0,
         overload_cost_weight: float = 1.0,
-        frame_skip: int = DEFAULT_FRAME_SKIP,
-        external_force_substeps: int = DEFAULT_EXTERNAL_FORCE_SUBSTEPS,
+        frame_skip: int | None = None,
+        external_force_substeps: int | None = None,
         two_route_check: bool | None = None,
         render_mode: str | None = None,
         width: int = 640,
         height: int = 480,
+        timestep: float | None = None,
     ) -> None:
         if not isinstance(dump_linkage, bool):
             raise ValueError(f"dump_linkage must be True or False, got {dump_linkage!r}")
@@ -287,6 +294,7 @@ class WheelLoaderLoadTruckEnv(WheelLoaderDigEnv):
             render_mode=render_mode,
             width=width,
             height=height,
+            timestep=timestep,
         )
         self.horizon = math.ceil(self.cycle_time_limit * self.loader.froude_time / self.dt - 1e-9)
         self.observation_space = spaces.Box(-OBS_LIMIT, OBS_LIMIT, shape=(len(OBS_NAMES),), dtype=np.float32)
@@ -295,6 +303,9 @@ class WheelLoaderLoadTruckEnv(WheelLoaderDigEnv):
         self._drive_act = self.model.actuator("drive").id
         self._heel_top = (self.model.site("bucket_heel").id, self.model.site("bucket_back_top").id)
         self._last_obs = np.zeros(len(OBS_NAMES), dtype=np.float32)
+
+    def _tilt_armature_factor(self) -> float:
+        return self._tilt_oil_ratio
 
     # -- model: the loader plus the truck's body -------------------------------------------------------------
     def _truck_x(self) -> tuple[float, float, float]:

@@ -38,12 +38,15 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.envs.mujoco.mujoco_env import MujocoEnv
 
-from scaletwin_envs.builder import BuildOptions, build_model
+from scaletwin_envs.builder import BuildOptions, build_model, froude_timestep
 from scaletwin_envs.envs.hydraulics import CylinderValve
 from scaletwin_envs.signals import SignalReader
 from scaletwin_envs.specs.laws import PRODUCT_LINE, ScalingLaw, make_law
 from scaletwin_envs.specs.loader import LoaderSpec, make_loader
 
+# Control step and soil refresh period in Froude steps (1 ms × √λ, builder.froude_timestep), whatever the physics
+# timestep: frame_skip and external_force_substeps default to these periods counted in physics steps (× the
+# builder's substeps, e.g. 300 and 60 at the mini), so the control rate is the same in Froude time at every scale.
 DEFAULT_FRAME_SKIP = 100  # 10 Hz control at the ER12 (100 ms × √λ)
 DEFAULT_EXTERNAL_FORCE_SUBSTEPS = 20  # soil resistance refreshed every 20 ms × √λ (it acts through implicit dampers)
 #: MUJOCO_GL back ends that render off-screen only (no window can open).
@@ -76,17 +79,22 @@ class LoaderEnv(MujocoEnv):
         scale: float | str | LoaderSpec = "er12",
         law: str | ScalingLaw = PRODUCT_LINE,
         distortion: Mapping[str, float] | None = None,
-        frame_skip: int = DEFAULT_FRAME_SKIP,
-        external_force_substeps: int = DEFAULT_EXTERNAL_FORCE_SUBSTEPS,
+        frame_skip: int | None = None,
+        external_force_substeps: int | None = None,
         render_mode: str | None = None,
         width: int = 640,
         height: int = 480,
         two_route_check: bool | None = None,
+        timestep: float | None = None,
     ) -> None:
         if not isinstance(scale, int | float) and make_law(law) != PRODUCT_LINE:
             raise ValueError(f"law={law!r} applies to float scales only; scale={scale!r} is a fixed machine (a preset "
                              "or a LoaderSpec): pass a length ratio to build it on that law")
         self.loader = make_loader(scale, law, distortion)
+        self.build_options = BuildOptions.for_spec(self.loader, timestep, self._tilt_armature_factor())
+        frame_skip = self._steps_in("frame_skip", frame_skip, DEFAULT_FRAME_SKIP)
+        external_force_substeps = self._steps_in("external_force_substeps", external_force_substeps,
+                                                 DEFAULT_EXTERNAL_FORCE_SUBSTEPS)
         for name, value in (("frame_skip", frame_skip), ("external_force_substeps", external_force_substeps)):
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
@@ -101,7 +109,6 @@ class LoaderEnv(MujocoEnv):
                              "WAYLAND_DISPLAY, or MUJOCO_GL=egl/osmesa): use render_mode='rgb_array' and save or "
                              "stream the frames, or record the episode (scaletwin simulate --rrd) and open it "
                              "with scaletwin view")
-        self.build_options = BuildOptions.for_spec(self.loader)
         self.external_force_substeps = external_force_substeps
         if two_route_check is not None and not isinstance(two_route_check, bool | np.bool_):
             raise ValueError(f"two_route_check must be True, False or None (on request), got {two_route_check!r}")
@@ -158,6 +165,22 @@ class LoaderEnv(MujocoEnv):
             raise EpisodeFinishedError(f"the episode ended in a simulation error ({self.sim_error}); call reset() "
                                        "before stepping again (gymnasium: step after the end of an episode needs "
                                        "a reset)")
+
+    def _tilt_armature_factor(self) -> float:
+        """Factor on the tilt slide's armature that this env builds (the timestep rule reads the inertia as built)."""
+        return 1.0
+
+    def _steps_in(self, name: str, value: int | None, froude_steps: int) -> int | None:
+        """``value`` as given; None: ``froude_steps`` Froude steps counted in physics steps at this env's timestep,
+        which must divide that period (else ``ValueError``: pass ``name`` explicitly)."""
+        if value is not None:
+            return value
+        steps = froude_steps * froude_timestep(self.loader) / self.build_options.timestep
+        if abs(steps - round(steps)) > 1e-6 * steps:
+            raise ValueError(f"timestep={self.build_options.timestep!r} s does not divide the default period of "
+                             f"{froude_steps} Froude steps ({froude_steps * froude_timestep(self.loader):.6g} s): "
+                             f"pass {name} (physics steps) as well")
+        return round(steps)
 
     # -- MujocoEnv plumbing ------------------------------------------------------------------------------
     def _initialize_simulation(self) -> tuple[mujoco.MjModel, mujoco.MjData]:

@@ -16,10 +16,16 @@ the machine has pulled back (``info["success"]`` if the fill factor reaches ``su
 at ``max_episode_time`` (Froude time units) or on a physics blow-up (``info["sim_error"]``).
 
 Registration: ``max_episode_steps`` is :data:`scaletwin_envs.MAX_EPISODE_STEPS` (290), the control steps in the
-default ``max_episode_time`` at the default ``frame_skip`` at every scale (the control step and the Froude time
-both grow as √λ); when changing either, pass ``max_episode_steps=horizon_steps(max_episode_time, frame_skip)`` to
-``gym.make`` as well, or gymnasium's ``TimeLimit`` truncates at 290 steps (``env.unwrapped.horizon`` is the env's
-own).
+default ``max_episode_time`` at the default ``frame_skip`` at every scale and timestep (the control step, 100 Froude
+steps of 1 ms × √λ, and the Froude time both grow as √λ); when changing either, pass
+``max_episode_steps=horizon_steps(max_episode_time, frame_skip, ...)`` to ``gym.make`` as well, or gymnasium's
+``TimeLimit`` truncates at 290 steps (``env.unwrapped.horizon`` is the env's own).
+
+Timestep: by default the Froude step (1 ms × √λ) divided into as many parts as the tilt cylinder's velocity servo
+needs (:func:`scaletwin_envs.builder.timestep_substeps`: 1 at the ER12 and the WA475, 3 at the mini, 0.126 ms);
+``timestep=`` (s) sets another, e.g. for a convergence check. ``frame_skip`` and ``external_force_substeps`` count
+physics steps at the env's timestep; left None they keep the control step at 100 Froude steps and the soil refresh
+at 20 (then the timestep must divide those periods).
 
 Info: every step returns the same keys (:data:`INFO_KEYS`), a ``sim_error`` step included: ``sim_error`` is None,
 or why the physics failed; then the signals are those of the last good step, the reward terms 0.0, the phase
@@ -51,6 +57,19 @@ Version history:
     2 shared AVX-512 cores; 0.80–0.83 over five such runs). Signal values
     are plain floats (some were ``np.float64``). The physics timestep stays Froude-scaled (1 ms × √λ): doubling it
     moves the mini's F21 over the dig by 12.5 % (mean absolute), so it is no free numerical choice.
+    v0 (2026-11-26, dynamics changed where the timestep did; the ER12 and the WA475 bit for bit as before): the
+    physics timestep is the Froude step divided into as many parts as keep it within 21 tilt-servo time constants
+    (:func:`scaletwin_envs.builder.timestep_substeps`), since a servo clamped at relief is integrated explicitly and
+    at larger ratios locks into a relay between its force limits: the mini's step is 0.126 ms (was 0.378 ms, where
+    its dig's F21 was 10 % off its value at the new step; now halving the step moves it by 0.63 %), and most
+    product-line machines below λ ≈ 1 (some above) get 2-4 parts. ``frame_skip`` and ``external_force_substeps``
+    default to None, the same control step and soil refresh period in seconds as before (300 and 60 physics steps
+    at the mini); ``timestep=`` sets the physics step explicitly (a finite number of seconds within 1/1000 to 2
+    Froude steps). The control step, horizon, observation and reward definitions are unchanged; the mini's
+    observations and rewards differ where the finer step integrates the relief stall differently. The rule is no
+    guarantee elsewhere: 16 of 26 machines sampled over the product line converge at it
+    (``benchmarks/results/env_throughput.md``). The id stays v0 for now although the mini's dynamics changed
+    (gymnasium's convention would bump it; the zoo's checkpoints and the recordings name v0).
 """
 
 from __future__ import annotations
@@ -63,8 +82,8 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
-from scaletwin_envs.builder import BuildOptions
-from scaletwin_envs.envs.loader_base import DEFAULT_EXTERNAL_FORCE_SUBSTEPS, DEFAULT_FRAME_SKIP, LoaderEnv
+from scaletwin_envs.builder import BuildOptions, froude_timestep
+from scaletwin_envs.envs.loader_base import DEFAULT_FRAME_SKIP, LoaderEnv
 from scaletwin_envs.envs.phases import DigPhase, classify
 from scaletwin_envs.physics.bucket import centroid_at, centroid_ends
 from scaletwin_envs.physics.dig import DigForces, DigModel
@@ -88,13 +107,20 @@ INFO_KEYS = ("signals", "phase", "reward_terms", "fill_factor", "loaded_mass", "
 REWARD_TERMS = ("fill", "time", "energy", "spill")
 
 
-def horizon_steps(max_episode_time: float = 60.0, frame_skip: int = DEFAULT_FRAME_SKIP) -> int:
-    """Control steps after which the env truncates itself, for ``max_episode_time`` (Froude times) and ``frame_skip``:
-    the same at every scale on either law (the physics timestep and the Froude time both grow as √λ). Pass it as
-    ``gym.make(..., max_episode_steps=horizon_steps(t))`` when changing either from its default."""
-    ref = make_loader("er12")
-    dt = BuildOptions.for_spec(ref).timestep * frame_skip
-    return math.ceil(max_episode_time * ref.froude_time / dt - 1e-9)
+def horizon_steps(max_episode_time: float = 60.0, frame_skip: int | None = None,
+                  loader: LoaderSpec | None = None, timestep: float | None = None) -> int:
+    """Control steps after which the env truncates itself, for ``max_episode_time`` (Froude times) and ``frame_skip``.
+    With ``frame_skip`` None (the default control step of 100 Froude steps) the same at every scale, law and
+    timestep; an explicit ``frame_skip`` counts physics steps of ``timestep`` (s), by default the env's default
+    timestep for ``loader`` (default the ER12, whose timestep is its Froude step). Pass it as
+    ``gym.make(..., max_episode_steps=horizon_steps(t, ...))`` when changing either from its default."""
+    spec = loader if loader is not None else make_loader("er12")
+    froude = froude_timestep(spec)
+    if frame_skip is None:
+        control = DEFAULT_FRAME_SKIP * froude
+    else:
+        control = frame_skip * (BuildOptions.for_spec(spec, timestep).timestep)
+    return math.ceil(max_episode_time * spec.froude_time / control - 1e-9)
 
 
 def _positive(name: str, value: float) -> float:
@@ -117,7 +143,10 @@ class WheelLoaderDigEnv(LoaderEnv):
         reset_noise_scale: size of the random start pose and pile perturbations (0 = none).
         success_fill: fill factor counted as a successful dig.
         fill_reward_weight, time_cost_weight, energy_cost_weight, spill_cost_weight: reward weights.
-        frame_skip, external_force_substeps: physics steps per control step / per soil-force update.
+        frame_skip, external_force_substeps: physics steps per control step / per soil-force update (None: 100 /
+            20 Froude steps of 1 ms × √λ, whatever the timestep).
+        timestep: physics timestep, s (None: the converged default, :func:`scaletwin_envs.builder.timestep_substeps`;
+            else a finite number within 1/1000 to 2 Froude steps, or ``ValueError``).
         two_route_check: the second route to the pin forces (Newton–Euler of the linkage, never reading a pin
             constraint force; ``*_route2`` and ``residual_*`` signals): ``True`` every step, ``False`` never,
             ``None`` (default) on request: while a recorder (``EpisodeRecorder``, ``RerunLogger``, so
@@ -148,12 +177,13 @@ class WheelLoaderDigEnv(LoaderEnv):
         time_cost_weight: float = 0.002,
         energy_cost_weight: float = 0.02,
         spill_cost_weight: float = 1.0,
-        frame_skip: int = DEFAULT_FRAME_SKIP,
-        external_force_substeps: int = DEFAULT_EXTERNAL_FORCE_SUBSTEPS,
+        frame_skip: int | None = None,
+        external_force_substeps: int | None = None,
         two_route_check: bool | None = None,
         render_mode: str | None = None,
         width: int = 640,
         height: int = 480,
+        timestep: float | None = None,
     ) -> None:
         self.soil = make_soil(soil)
         self.pile_distance = _positive("pile_distance", pile_distance)
@@ -169,7 +199,7 @@ class WheelLoaderDigEnv(LoaderEnv):
             if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
                 raise ValueError(f"{k} reward weight must be a finite number >= 0, got {v!r}")
         super().__init__(scale, law, distortion, frame_skip, external_force_substeps, render_mode, width, height,
-                         two_route_check)
+                         two_route_check, timestep)
         self.observation_space = spaces.Box(-OBS_LIMIT, OBS_LIMIT, shape=(len(OBS_NAMES),), dtype=np.float32)
         L = self.loader.characteristic_length
         self.length, self.speed_scale = L, math.sqrt(GRAVITY * L)

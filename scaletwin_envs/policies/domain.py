@@ -27,9 +27,9 @@ import gymnasium as gym
 import numpy as np
 
 import scaletwin_envs
-from scaletwin_envs.envs.loader_base import DEFAULT_FRAME_SKIP
 from scaletwin_envs.envs.wheel_loader_dig import horizon_steps
-from scaletwin_envs.specs.laws import LAWS
+from scaletwin_envs.specs.laws import LAWS, PRODUCT_LINE
+from scaletwin_envs.specs.loader import make_loader
 from scaletwin_envs.specs.presets import PRESETS
 from scaletwin_envs.specs.soil import SOILS
 
@@ -96,7 +96,11 @@ class RandomizedDigEnv(gym.Wrapper):
         kwargs = {**self.env_kwargs, **drawn}
         if not isinstance(kwargs["scale"], int | float):
             kwargs.pop("law", None)  # a preset machine is built as it is; the env rejects a law for it
-        steps = horizon_steps(kwargs.get("max_episode_time", 60.0), kwargs.get("frame_skip", DEFAULT_FRAME_SKIP))
+        loader = None
+        if kwargs.get("frame_skip") is not None:  # physics steps at this machine's timestep: the horizon needs it
+            loader = make_loader(kwargs["scale"], kwargs.get("law", PRODUCT_LINE), kwargs.get("distortion"))
+        steps = horizon_steps(kwargs.get("max_episode_time", 60.0), kwargs.get("frame_skip"), loader,
+                              kwargs.get("timestep"))
         return gym.make(scaletwin_envs.ENV_ID, max_episode_steps=steps, disable_env_checker=True, **kwargs)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
