@@ -38,26 +38,23 @@ between samples; compare the twin at the log's times instead (every m-th twin ro
 NaN gaps are bridged (signals linearly, commands by holding the last value) when the span without data is at most
 :data:`MAX_GAP_STEPS` control steps, and refused otherwise. Everything done is recorded in an :class:`InputReport`.
 
-:func:`estimate_offset`/:func:`shift_signals` find and undo a time offset between the log and the twin's replay;
+:func:`estimate_offset`/:func:`delayed` find a time offset between the log and the twin's replay and read the twin
+with it;
 :func:`first_order_filter`/:func:`estimate_sensor_tau` model a sensor's first-order low-pass.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from scipy import optimize, signal
 from scipy.interpolate import CubicSpline
 
 from discrepancy.data.channels import COMPARED, RecordingError
-
-if TYPE_CHECKING:
-    from discrepancy.data.episode import EpisodeData
 
 #: A gap is bridged when the straight line (or the held command) spans at most this many control steps: 0.4 s at
 #: ER12's 0.1 s, under half a locate window (10 steps), so a bridged gap can never fill a window by itself, and
@@ -450,7 +447,8 @@ def _uniform(time: np.ndarray, x: np.ndarray, h: float) -> tuple[np.ndarray, np.
 # -- time offset -------------------------------------------------------------------------------------------------
 
 def estimate_offset(real: Mapping[str, np.ndarray], twin: Mapping[str, np.ndarray], dt: float,
-                    channels: Sequence[str] = KINEMATIC, max_shift: float = 1.0) -> OffsetEstimate:
+                    channels: Sequence[str] = KINEMATIC, max_shift: float = 1.0,
+                    scale: Mapping[str, float] | None = None) -> OffsetEstimate:
     """The time offset (s) that best aligns a log's signals with the twin's replay of its commands.
 
     Least squares over fractional shifts: each channel is normalised by the twin's standard deviation, the twin is
@@ -462,9 +460,13 @@ def estimate_offset(real: Mapping[str, np.ndarray], twin: Mapping[str, np.ndarra
         real, twin: SI signals (steps,) at the same control times, step ``dt`` (s).
         channels: channels to use where present and finite in both (default: the kinematic ones).
         max_shift: largest offset searched, s.
+        scale: each channel's normaliser (default: the twin's standard deviation over the rows given; give the
+            whole record's when estimating on its first rows, where a channel that barely moves yet would get a
+            normaliser near zero and outweigh the rest).
     """
     names = tuple(c for c in channels if c in real and c in twin
-                  and np.all(np.isfinite(real[c])) and np.all(np.isfinite(twin[c])) and np.std(twin[c]) > 0)
+                  and np.all(np.isfinite(real[c])) and np.all(np.isfinite(twin[c])) and np.std(twin[c]) > 0
+                  and (scale is None or scale.get(c, 0.0) > 0))
     if not names:
         return OffsetEstimate(0.0, False, float("nan"), float("nan"), ())
     n = len(twin[names[0]])
@@ -473,9 +475,9 @@ def estimate_offset(real: Mapping[str, np.ndarray], twin: Mapping[str, np.ndarra
         m = max((n - 4) // 2, 0)
     t = dt * np.arange(n)
     keep = slice(m, n - m)
-    scale = {c: float(np.std(twin[c])) for c in names}
-    splines = {c: CubicSpline(t, twin[c] / scale[c]) for c in names}
-    target = {c: real[c][keep] / scale[c] for c in names}
+    norm = {c: float(scale[c]) if scale is not None else float(np.std(twin[c])) for c in names}
+    splines = {c: CubicSpline(t, twin[c] / norm[c]) for c in names}
+    target = {c: real[c][keep] / norm[c] for c in names}
 
     def cost(s: float) -> float:
         return float(np.mean([np.mean((target[c] - splines[c](t[keep] - s)) ** 2) for c in names]))
@@ -494,30 +496,16 @@ def estimate_offset(real: Mapping[str, np.ndarray], twin: Mapping[str, np.ndarra
     return OffsetEstimate(s_best, bool(significant), c_zero, c_best, names)
 
 
-def shift_signals(ep: EpisodeData, offset: float) -> EpisodeData:
-    """``ep`` with its signals moved by ``-offset`` s relative to its commands (cubic interpolation), so a log that
-    lags the twin by ``offset`` lines up with it.
-
-    Rows whose shifted time falls after the log's end are trimmed (with their commands; the replay starts from the
-    reset, so the first rows are kept); for a negative offset, the first rows, whose shifted time falls before the
-    log's start, take the first sample's value (a warning in the report says how many). The report, if any, gets
-    ``time_offset = offset``.
-    """
-    if offset == 0.0:
-        return ep
-    t = ep.time
-    keep = int(np.searchsorted(t, t[-1] - offset + 1e-9 * ep.dt, side="right")) if offset > 0 else len(t)
-    if keep < 2:
-        raise RecordingError(f"{ep.name}: an offset of {offset:.3g} s leaves no rows")
-    at = np.clip(t[:keep] + offset, t[0], t[-1])
-    signals = {k: CubicSpline(t, v)(at) for k, v in ep.signals.items()}
-    report = ep.input_report
-    if report is not None:
-        held = int(np.sum(t[:keep] + offset < t[0] - 1e-12))
-        extra = (f"time offset {offset:.3g} s: the first {held} rows hold the first logged value",) if held else ()
-        report = dataclasses.replace(report, time_offset=float(offset), warnings=report.warnings + extra)
-    return dataclasses.replace(ep, time=t[:keep].copy(), commands=ep.commands[:keep].copy(), signals=signals,
-                               phases=ep.phases[:keep].copy(), input_report=report)
+def delayed(x: np.ndarray, dt: float, offset: float) -> np.ndarray:
+    """``x`` (sampled every ``dt`` s along its last axis) read ``offset`` s late, as a logger whose clock runs
+    ``offset`` behind the commands' would log it: ``y(t) = x(t - offset)`` by cubic interpolation, the first and
+    last samples held beyond the record."""
+    x = np.asarray(x, dtype=np.float64)
+    n = x.shape[-1]
+    if offset == 0.0 or n < 2 or not np.all(np.isfinite(x)):
+        return x.copy()
+    t = dt * np.arange(n)
+    return CubicSpline(t, x, axis=-1)(np.clip(t - offset, 0.0, t[-1]))
 
 
 # -- sensor low-pass ---------------------------------------------------------------------------------------------
@@ -610,7 +598,8 @@ def best_tau(cost: Callable[[float], float], dt: float) -> tuple[float, float, f
 
 __all__ = [
     "KINEMATIC", "MAX_GAP_STEPS", "InputReport", "OffsetEstimate", "PreparedLog",
-    "antialias_filter", "best_tau", "bridge_gaps", "command_timing", "control_grid", "end_level",
-    "estimate_channel_taus", "estimate_offset", "estimate_sensor_tau", "first_order_filter", "jittered_commands",
-    "moved_commands", "prepare_log", "resample_commands", "resample_phases", "resample_signal", "shift_signals",
+    "antialias_filter", "best_tau", "bridge_gaps", "command_timing", "control_grid", "delayed", "end_level",
+    "estimate_channel_taus", "estimate_offset", "estimate_sensor_tau",
+    "first_order_filter", "jittered_commands", "moved_commands", "prepare_log", "resample_commands",
+    "resample_phases", "resample_signal",
 ]

@@ -23,7 +23,6 @@ from discrepancy.data.fieldlog import (
     estimate_offset,
     estimate_sensor_tau,
     first_order_filter,
-    shift_signals,
 )
 from discrepancy.twin.plant import Plan
 from discrepancy.twin.runner import Runner
@@ -33,8 +32,7 @@ from discrepancy.twin.start import StartEstimate, estimate_start
 LIFT = ("lift_extension", "boom_angle", "lift_speed")  # channels moved by the lift circuit
 TILT = ("tilt_extension", "bucket_pitch", "tilt_speed")  # ... by the tilt circuit
 OFFSET_AGREEMENT = 0.5  # the circuits' offsets may differ by this many control steps
-REFINE_START = 2  # re-estimates of the start after the offset and sensor filter seen against the one before
-TOLERANCE = 0.25  # control steps: an offset or filter time constant that moved less is settled
+TOLERANCE = 0.25  # control steps: a channel's own filter time constant this close to the common one is the common one
 
 
 @dataclass(frozen=True)
@@ -58,12 +56,21 @@ def _filtered(result: SimResult, dt: float, tau: float) -> dict:
     return {k: first_order_filter(v, dt, tau) for k, v in result.signals.items()} if tau > 0 else result.signals
 
 
-def _offset(ep: EpisodeData, twin: dict, notes: list[str]) -> tuple[OffsetEstimate, bool]:
-    """The log's offset against ``twin`` and whether to undo it (both circuits agree; see the module)."""
-    offset = estimate_offset(ep.signals, twin, ep.dt)
+def _spread(signals: dict[str, np.ndarray]) -> dict[str, float]:
+    """Each signal's standard deviation over the whole record (the normaliser of an offset fitted on its first
+    rows, see ``estimate_offset``)."""
+    return {c: float(np.std(v)) for c, v in signals.items() if np.all(np.isfinite(v))}
+
+
+def _offset(ep: EpisodeData, twin: dict, notes: list[str], scale: dict[str, float] | None = None
+            ) -> tuple[OffsetEstimate, bool]:
+    """The log's offset against ``twin`` and whether to undo it (both circuits agree; see the module); ``scale``:
+    the channels' normalisers (see ``estimate_offset``)."""
+    offset = estimate_offset(ep.signals, twin, ep.dt, scale=scale)
     if not offset.significant:
         return offset, False
-    lift, tilt = estimate_offset(ep.signals, twin, ep.dt, LIFT), estimate_offset(ep.signals, twin, ep.dt, TILT)
+    lift = estimate_offset(ep.signals, twin, ep.dt, LIFT, scale=scale)
+    tilt = estimate_offset(ep.signals, twin, ep.dt, TILT, scale=scale)
     if lift.significant and tilt.significant and abs(lift.offset - tilt.offset) <= OFFSET_AGREEMENT * ep.dt:
         return offset, True
     notes.append(f"the kinematic channels lag the commands by {offset.offset:.3g} s, but the lift and tilt circuits "
@@ -75,16 +82,14 @@ def _head(signals: dict[str, np.ndarray], rows: int) -> dict[str, np.ndarray]:
     return {c: v[:rows] for c, v in signals.items()}
 
 
-def _channel_taus(ep: EpisodeData, spec: TwinSpec, runner: Runner, nominal: SimResult,
-                  shifted: bool, rows: int) -> tuple[tuple[str, float], ...]:
-    """Each channel's own sensor time constant (s) against the twin over the first ``rows`` rows (the log ``ep``
-    as compared, its offset undone when ``shifted``; ``nominal`` the unfiltered replay of the commands before
-    that), where it differs from the common ``spec.sensor_tau`` by at least :data:`TOLERANCE` control steps
-    (:func:`estimate_channel_taus`)."""
-    if shifted:
-        again = runner.with_twin(dataclasses.replace(spec, sensor_tau=0.0, sensor_taus=())).run_many(
-            ep.commands, [Plan()])[0]
-        nominal = nominal if again.error else again
+def _channel_taus(ep: EpisodeData, spec: TwinSpec, runner: Runner, rows: int) -> tuple[tuple[str, float], ...]:
+    """Each channel's own sensor time constant (s) against the twin ``spec`` without its filters (one replay) over
+    the first ``rows`` rows, where it differs from the common ``spec.sensor_tau`` by at least :data:`TOLERANCE`
+    control steps (:func:`estimate_channel_taus`)."""
+    nominal = runner.with_twin(dataclasses.replace(spec, sensor_tau=0.0, sensor_taus=())).run_many(
+        ep.commands, [Plan()])[0]
+    if nominal.error:
+        return ()
     rows = min(rows, len(ep))
     taus = estimate_channel_taus(_head(ep.signals, rows), _head(nominal.signals, rows), ep.dt)
     return tuple(sorted((c, t) for c, t in taus.items() if abs(t - spec.sensor_tau) >= TOLERANCE * ep.dt))
@@ -93,34 +98,24 @@ def _channel_taus(ep: EpisodeData, spec: TwinSpec, runner: Runner, nominal: SimR
 def align(ep: EpisodeData, spec: TwinSpec, runner: Runner) -> tuple[EpisodeData, TwinSpec, Alignment]:
     """The episode and twin to compare, and what was estimated to get them (see the module).
 
-    Order: an offset against the default start first (the kinematics before the bucket meets the pile do not depend
-    on it), then the start on the log so aligned, then the sensor filter and what is left of the offset against
-    the twin from that start; the offsets add up and the log is shifted once."""
+    A log without seed: its start, a common sensor filter and a time offset fitted together on its first rows
+    (:func:`estimate_start`); then each channel's own filter and what is left of the offset against the twin from
+    that start, on the same rows; the offsets add up and the log is shifted once. A log with a seed: the filter
+    and the offset against the twin from its seed."""
     notes: list[str] = []
     start, total, applied, offset = None, 0.0, False, None
     if ep.seed is None:
-        first = runner.with_twin(spec).run_many(ep.commands, [Plan()])[0]
-        if not first.error:  # against the default start: a first guess, checked once the start is known
-            guess = estimate_offset(ep.signals, first.signals, ep.dt)
-            total = guess.offset if guess.significant else 0.0
-        # a filter the twin does not declare is fitted jointly with the start (each replay through its best
-        # filter, see estimate_start): a lag fitted afterwards absorbs a pile misplaced to make up for it
+        # the start, a filter the twin does not declare and the time offset are fitted together (see
+        # estimate_start): one after the other, a lag reads as a pile met later, a pile misplaced as a lag
         profile = spec.sensor_tau == 0.0
-        for k in range(REFINE_START + 1):  # the start on the log so aligned, then the offset against it
-            held = int(np.ceil(max(-total, 0.0) / ep.dt - 1e-9))  # rows a negative offset leaves unlogged
-            shifted = shift_signals(ep, total) if total else ep
-            start = estimate_start(shifted, runner.with_twin(spec), held, profile_filter=profile)
-            spec = dataclasses.replace(spec, start=start.options, start_draws=start.draws)
+        start = estimate_start(ep, runner.with_twin(spec), profile_filter=profile, fit_offset=True)
+        spec = dataclasses.replace(spec, start=start.options, start_draws=start.draws)
+        total = start.offset
+        applied = total != 0.0
+        if applied:
             again = runner.with_twin(spec).run_many(ep.commands, [Plan()])[0]
-            if again.error or k == REFINE_START:
-                break
             seen = _filtered(again, ep.dt, start.sensor_tau) if profile else again.signals
-            refined, undo = _offset(ep, seen, [])
-            new_total = refined.offset if undo else 0.0
-            if abs(new_total - total) <= TOLERANCE * ep.dt:
-                break
-            total = new_total
-        applied, offset = total != 0.0, (estimate_offset(ep.signals, again.signals, ep.dt) if total else None)
+            offset = estimate_offset(*(_head(x, start.rows) for x in (ep.signals, seen)), ep.dt, scale=_spread(seen))
         assert start is not None
         notes.append(f"the log has no reset seed: start pose and pile estimated from it ({start.replays} replays; "
                      f"misfit {start.misfit_default:.3g} -> {start.misfit:.3g})")
@@ -128,33 +123,35 @@ def align(ep: EpisodeData, spec: TwinSpec, runner: Runner) -> tuple[EpisodeData,
             unseen = ", ".join(k.removeprefix("pile_").replace("_", " ") for k in start.unidentified)
             notes.append(f"the log does not show the pile's {unseen} (the bucket never reaches it): left at the "
                          "twin's nominal value")
-    shifted = shift_signals(ep, total) if total else ep
-    nominal = runner.with_twin(spec).run_many(shifted.commands, [Plan()])[0]
+    spec = dataclasses.replace(spec, time_offset=total)
+    nominal = runner.with_twin(spec).run_many(ep.commands, [Plan()])[0]
     if nominal.error:
         return ep, spec, Alignment(start, 0.0, offset, applied, tuple(notes))
     # where the start was estimated, the filter is fitted on the rows it was fitted on: later in the dig a twin
     # from a start the log cannot pin down differs by more than any filter (see estimate_start)
-    trusted = start.rows if start is not None and start.rows else len(shifted)
+    trusted = start.rows if start is not None and start.rows else len(ep)
     if start is not None and spec.sensor_tau == 0.0:  # fitted jointly with the start
         tau = start.sensor_tau
     else:
-        tau = estimate_sensor_tau(_head(shifted.signals, trusted), _head(nominal.signals, trusted), ep.dt)
-    rest, undo = _offset(shifted, _filtered(nominal, ep.dt, tau), notes)
+        tau = estimate_sensor_tau(_head(ep.signals, trusted), _head(nominal.signals, trusted), ep.dt)
+    seen = _filtered(nominal, ep.dt, tau)
+    rest, undo = _offset(ep.head(trusted), _head(seen, trusted), notes, _spread(seen))
     if undo:
         total, applied, offset = total + rest.offset, True, rest
+        spec = dataclasses.replace(spec, time_offset=total)
     if applied:
-        ep = shift_signals(ep, total)
-        notes.append(f"time offset between the log's signals and its commands: {total:.3g} s, undone")
+        notes.append(f"time offset between the log's signals and its commands: {total:.3g} s, applied to the twin "
+                     "(read at the log's times)")
     if tau > 0:
-        spec = dataclasses.replace(spec, sensor_tau=tau, sensor_taus=_channel_taus(ep, spec, runner, nominal,
-                                                                                  applied, trusted))
+        spec = dataclasses.replace(spec, sensor_tau=tau, sensor_taus=_channel_taus(ep, spec, runner, trusted))
         notes.append(f"the log's channels went through a first-order sensor filter: tau {tau:.3g} s estimated, "
                      "applied to the twin")
         if spec.sensor_taus:
             own = ", ".join(f"{c} {t:.3g}" for c, t in spec.sensor_taus)
             notes.append(f"each channel's own sensor filter, tau s (applied to the twin): {own}")
     if ep.input_report is not None:
-        ep = dataclasses.replace(ep, input_report=dataclasses.replace(ep.input_report, sensor_tau=tau))
+        ep = dataclasses.replace(ep, input_report=dataclasses.replace(
+            ep.input_report, sensor_tau=tau, time_offset=float(total) if applied else ep.input_report.time_offset))
     if offset is not None and applied:
         offset = dataclasses.replace(offset, offset=total)
     return ep, spec, Alignment(start, tau, offset if offset is not None else rest, applied, tuple(notes))

@@ -18,7 +18,7 @@ import numpy as np
 
 from discrepancy.data.channels import COMPARED, ROUTE2, RecordingError
 from discrepancy.data.episode import EpisodeData
-from discrepancy.data.fieldlog import first_order_filter
+from discrepancy.data.fieldlog import delayed, first_order_filter
 from discrepancy.twin.env import Structure, TwinDigEnv
 from discrepancy.twin.plant import Plan, apply_sensors
 from scaletwin_envs.envs.wheel_loader_dig import WheelLoaderDigEnv
@@ -38,7 +38,10 @@ class TwinSpec:
     has no seed; given values replace what the seed would draw. ``sensor_tau``: time constant (s) of a first-order
     sensor filter the log's channels went through, applied to every twin signal (0: none); ``sensor_taus``:
     ``(channel, time constant s)`` where a channel's own filter differs from ``sensor_tau`` (estimated only where
-    the log shows a common filter, :func:`~discrepancy.twin.align.align`); ``start_draws``: starts as uncertain as
+    the log shows a common filter, :func:`~discrepancy.twin.align.align`); ``time_offset``: s by which the log's
+    signals lag its commands, applied to every twin signal after the filter (:func:`~discrepancy.data.fieldlog.
+    delayed`; the twin read at the log's times, rather than the log shifted: a shift of a sampled step leaves an
+    interpolation error the twin's own reading does not); ``start_draws``: starts as uncertain as
     the estimated ``start`` (reset options each), which the null's runs start from (:meth:`null_starts`).
     """
 
@@ -50,6 +53,7 @@ class TwinSpec:
     sensor_tau: float = 0.0
     sensor_taus: tuple[tuple[str, float], ...] = ()
     start_draws: tuple[tuple[tuple[str, float], ...], ...] = ()
+    time_offset: float = 0.0
 
     def null_starts(self, runs: int) -> list[tuple[tuple[str, float], ...]] | None:
         """The starts of ``runs`` null runs (cycling through :attr:`start_draws`), or None when the start is not
@@ -106,12 +110,14 @@ class TwinSpec:
         taus = tuple(sorted((str(k), float(v)) for k, v in dict(doc.get("sensor_taus", {})).items()))
         draws = tuple(tuple(sorted((str(k), float(v)) for k, v in dict(d).items()))
                       for d in doc.get("start_draws", []))
-        return cls(loader, soil, kwargs, int(seed), start, float(doc.get("sensor_tau", 0.0)), taus, draws)
+        return cls(loader, soil, kwargs, int(seed), start, float(doc.get("sensor_tau", 0.0)), taus, draws,
+                   float(doc.get("time_offset", 0.0)))
 
     def to_dict(self) -> dict[str, Any]:
         return {"scale": self.loader.to_dict(), "soil": self.soil.to_dict(), "env_kwargs": dict(self.env_kwargs),
                 "seed": self.seed, "start": dict(self.start), "sensor_tau": self.sensor_tau,
-                "sensor_taus": dict(self.sensor_taus), "start_draws": [dict(d) for d in self.start_draws]}
+                "sensor_taus": dict(self.sensor_taus), "start_draws": [dict(d) for d in self.start_draws],
+                "time_offset": self.time_offset}
 
 
 def _scale(value: Any) -> float | str:
@@ -159,7 +165,7 @@ class Simulator:
     def run(self, commands: np.ndarray, plan: Plan | None = None, two_routes: bool | None = None,
             start: tuple[tuple[str, float], ...] | None = None) -> SimResult:
         """Replay ``commands`` (steps, 3) with ``plan`` from the twin's seed and start (``start`` overrides the
-        twin's); signals after sensor models and the twin's sensor filter."""
+        twin's); signals after sensor models, the twin's sensor filter and its time offset."""
         plan = plan or Plan()
         env = self.env(plan.structure, two_routes)
         env.set_physics(plan.physics)
@@ -184,6 +190,8 @@ class Simulator:
         if self.twin.sensor_tau > 0.0 or self.twin.sensor_taus:
             own = dict(self.twin.sensor_taus)
             signals = {k: first_order_filter(v, env.dt, own.get(k, self.twin.sensor_tau)) for k, v in signals.items()}
+        if self.twin.time_offset:
+            signals = {k: delayed(v, env.dt, self.twin.time_offset) for k, v in signals.items()}
         return SimResult(signals, np.asarray(phases + ["error"] * (n - len(phases)), dtype=object), error)
 
 

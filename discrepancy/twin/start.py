@@ -37,7 +37,14 @@ import numpy as np
 from discrepancy.context import HUBER, huber
 from discrepancy.data.channels import COMPARED
 from discrepancy.data.episode import EpisodeData
-from discrepancy.data.fieldlog import MIN_TAU_GAIN, best_tau, first_order_filter
+from discrepancy.data.fieldlog import (
+    MIN_OFFSET_GAIN,
+    MIN_OFFSET_STEPS,
+    MIN_TAU_GAIN,
+    best_tau,
+    delayed,
+    first_order_filter,
+)
 from discrepancy.twin.plant import Plan
 from discrepancy.twin.runner import Runner, Start
 from discrepancy.twin.spec import SimResult
@@ -58,6 +65,8 @@ COARSE = ("pile_distance", "repose_angle")  # gridded before the joint fit (the 
 HEAD = 3  # control steps replayed to fit the start angles (before the bucket meets the pile)
 NEWTON = 3  # Newton steps for the start angles
 MAX_ANGLE = 0.3  # rad: start angles beyond this leave the linkage unassembled (the env refuses them)
+MAX_OFFSET = 1.0  # s: the largest time offset between a log's signals and its commands searched
+OFFSET_STEP = 0.25  # control steps: the offset's central-difference step (read off the same replay)
 ANGLE_STEP = 1e-3  # rad, finite-difference step of the angles' Jacobian
 SPAN = 2.0  # searched range, in units of the half-range the env's reset draws
 #: Levenberg–Marquardt iterations (each a batch of 2·len(FITTED) Jacobian replays, unless the last step was
@@ -116,11 +125,14 @@ class StartEstimate:
     rows: int = 0  # the rows the start was fitted on end here (0: all); the rows a filter is fitted on too
     #: starts the log cannot tell from this one, drawn from the estimate's uncertainty (see :data:`START_SPREAD`)
     draws: tuple[Start, ...] = ()
+    #: s: the log's signals lag its commands by this much (fitted jointly; 0: none worth undoing, see
+    #: ``fieldlog.MIN_OFFSET_STEPS`` and ``MIN_OFFSET_GAIN``)
+    offset: float = 0.0
 
     def to_dict(self) -> dict[str, object]:
         return {"options": dict(self.options), "misfit": self.misfit, "misfit_default": self.misfit_default,
                 "replays": self.replays, "unidentified": list(self.unidentified), "sensor_tau_s": self.sensor_tau,
-                "rows": self.rows, "draws": [dict(d) for d in self.draws]}
+                "rows": self.rows, "draws": [dict(d) for d in self.draws], "offset_s": self.offset}
 
 
 def _nominal(env_kwargs: dict[str, object], soil_repose: float) -> dict[str, tuple[float, float]]:
@@ -138,12 +150,14 @@ def _nominal(env_kwargs: dict[str, object], soil_repose: float) -> dict[str, tup
 
 @dataclass(frozen=True)
 class _Probe:
-    """One replay against the log: residuals ``z`` (see :meth:`_Fit.residuals`) and the sensor filter's τ (s)
-    they were computed through."""
+    """One replay against the log: residuals ``z`` (see :meth:`_Fit.residuals`), the sensor filter's τ (s) and the
+    time offset (control steps) they were computed with, and the replay itself (to read it at another offset)."""
 
     z: np.ndarray
+    result: SimResult
     tau: float = 0.0
     filtered: bool = False  # the filter removes at least MIN_TAU_GAIN of the misfit (a sensor filter, not noise)
+    shift: float = 0.0
 
 
 class _Fit:
@@ -159,27 +173,39 @@ class _Fit:
         self.profile_filter = profile_filter
         self.replays = 0
 
-    def residuals(self, result: SimResult) -> _Probe | None:
-        """(twin − log) / scale over :attr:`rows`, flattened, the twin through the best first-order sensor filter
-        when profiled; None when the replay failed."""
+    def residuals(self, result: SimResult, shift: float = 0.0) -> _Probe | None:
+        """(twin − log) / scale over :attr:`rows`, flattened, the twin read ``shift`` control steps late (the log
+        lags its commands by that much) and through the best first-order sensor filter when profiled; None when
+        the replay failed."""
         if result.error:
             return None
-        twin = np.stack([result.signals[s][: self.rows.stop] for s in self.names])
+        twin = delayed(np.stack([result.signals[s] for s in self.names]), self.ep.dt, shift * self.ep.dt)
+        twin = twin[:, : self.rows.stop]
 
         def z_at(tau: float) -> np.ndarray:
             seen = first_order_filter(twin, self.ep.dt, tau)
             return np.nan_to_num(((seen - self.real) / self.scale[:, None])[:, self.rows].T, nan=1e3).ravel()
 
         if not self.profile_filter:
-            return _Probe(z_at(0.0))
+            return _Probe(z_at(0.0), result, shift=shift)
         tau, cost, unfiltered = best_tau(lambda t: misfit(z_at(t)), self.ep.dt)
-        return _Probe(z_at(tau), tau, cost <= (1.0 - MIN_TAU_GAIN) * unfiltered)
+        return _Probe(z_at(tau), result, tau, cost <= (1.0 - MIN_TAU_GAIN) * unfiltered, shift)
 
-    def run(self, starts: list[Start]) -> list[_Probe | None]:
-        """One probe per start (one batch of replays of the log's commands up to the fitted rows' end)."""
+    def run(self, starts: list[Start], shifts: list[float] | None = None) -> list[_Probe | None]:
+        """One probe per start (one batch of replays of the log's commands up to the fitted rows' end), each read
+        with its offset in ``shifts`` (control steps; default none)."""
         self.replays += len(starts)
         results = self.runner.run_many(self.ep.commands[: self.rows.stop], [Plan()] * len(starts), starts=starts)
-        return [self.residuals(r) for r in results]
+        return [self.residuals(r, s) for r, s in zip(results, shifts or [0.0] * len(starts), strict=True)]
+
+    def best_shift(self, probe: _Probe | None) -> _Probe | None:
+        """``probe``'s replay read at the offset of a whole-step scan (±:data:`MAX_OFFSET` s) that fits best: a
+        start for the joint fit, free (no replay)."""
+        if probe is None:
+            return None
+        m = int(np.ceil(MAX_OFFSET / self.ep.dt))
+        scanned = [self.residuals(probe.result, float(k)) for k in range(-m, m + 1)]
+        return min(scanned, key=misfit)
 
 
 def misfit(z: np.ndarray | _Probe | None) -> float:
@@ -191,33 +217,45 @@ def misfit(z: np.ndarray | _Probe | None) -> float:
     return float(np.mean(huber(z.z if isinstance(z, _Probe) else z)))
 
 
-def estimate_start(ep: EpisodeData, runner: Runner, skip: int = 0, profile_filter: bool = False) -> StartEstimate:
+def estimate_start(ep: EpisodeData, runner: Runner, skip: int = 0, profile_filter: bool = False,
+                   fit_offset: bool = False) -> StartEstimate:
     """Reset options for the twin of ``runner`` that best replay ``ep`` (see the module), ignoring its first
     ``skip`` rows (rows a time offset left without a logged value); with ``profile_filter``, jointly with a
-    first-order sensor filter common to the motion channels (:attr:`StartEstimate.sensor_tau`)."""
+    first-order sensor filter common to the motion channels (:attr:`StartEstimate.sensor_tau`); with
+    ``fit_offset``, jointly with a time offset between the log's signals and its commands
+    (:attr:`StartEstimate.offset`)."""
     twin = runner.twin
     centre = _nominal(dict(twin.env_kwargs), twin.soil.repose_angle)
     current = {k: c for k, (c, _) in centre.items()}
     nominal = runner.run_many(ep.commands, [Plan()], starts=[_start(current)])[0]
-    fit = _Fit(ep, runner, slice(skip, _early_end(nominal, len(ep), skip)), profile_filter)
+    fit = _Fit(ep, runner, slice(skip, fitted_rows(nominal, len(ep), skip)), profile_filter)
     fit.replays += 1
     default = misfit(fit.residuals(nominal))
     angles_seen = len(_head_channels(ep)) >= len(ANGLES)
     if angles_seen:
         fit.replays += _solve_angles(ep, runner, current, skip)
     z: _Probe | None = None
+    shift = fit.best_shift(fit.residuals(nominal)).shift if fit_offset else 0.0  # type: ignore[union-attr]
     for name in COARSE if angles_seen else (*ANGLES, *COARSE):
         c, half = centre[name]
         grid = np.linspace(c - SPAN * half, c + SPAN * half, GRID)
         grid = grid[grid > 0.0] if name in PILE else grid
-        runs = fit.run([_start({**current, name: float(v)}) for v in grid])
+        runs = fit.run([_start({**current, name: float(v)}) for v in grid], [shift] * len(grid))
+        if fit_offset:
+            runs = [fit.best_shift(r) for r in runs]
         k = int(np.argmin([misfit(r) for r in runs]))
         z, current[name] = runs[k], float(grid[k])
-    z, unseen, cov = _levenberg_marquardt(fit, centre, current, z)
+        shift = z.shift if z is not None else shift
+    z, unseen, cov = _levenberg_marquardt(fit, centre, current, z, fit_offset)
     unidentified = tuple(k for k in unseen if k in PILE)
     draws = _draws(centre, current, cov)
+    offset = z.shift * ep.dt if z is not None else 0.0
+    if z is not None and fit_offset:  # an offset that does not explain most of what it could is not one
+        unshifted = fit.residuals(z.result)
+        if abs(z.shift) < MIN_OFFSET_STEPS or misfit(z) > (1.0 - MIN_OFFSET_GAIN) * misfit(unshifted):
+            offset = 0.0
     return StartEstimate(_start(current), misfit(z), float(default), fit.replays, unidentified,
-                         z.tau if z is not None and z.filtered else 0.0, int(fit.rows.stop), draws)
+                         z.tau if z is not None and z.filtered else 0.0, int(fit.rows.stop), draws, offset)
 
 
 def _bounds(centre: dict[str, tuple[float, float]]) -> tuple[np.ndarray, np.ndarray]:
@@ -249,32 +287,53 @@ def _draws(centre: dict[str, tuple[float, float]], current: dict[str, float], co
 
 
 def _levenberg_marquardt(fit: _Fit, centre: dict[str, tuple[float, float]], current: dict[str, float],
-                         probe: _Probe | None) -> tuple[_Probe | None, tuple[str, ...], np.ndarray]:
+                         probe: _Probe | None, fit_offset: bool = False
+                         ) -> tuple[_Probe | None, tuple[str, ...], np.ndarray]:
     """Joint Levenberg–Marquardt over :data:`FITTED` from ``current`` (``probe`` there; updated in place), in units
-    of each quantity's half-range, kept within :func:`_bounds`; IRLS weights for Huber's ρ.
-    Returns the probe reached, the quantities the log does not see (:data:`SEEN`) and the estimate's covariance
-    (half-range units; see :func:`_covariance`)."""
+    of each quantity's half-range, kept within :func:`_bounds`, and with ``fit_offset`` over the log's time offset
+    too (control steps, within ±:data:`MAX_OFFSET`; its Jacobian column read off the same replays); IRLS weights
+    for Huber's ρ. Returns the probe reached, the quantities the log does not see (:data:`SEEN`) and the
+    estimate's covariance (half-range units, :data:`FITTED` only; see :func:`_covariance`)."""
+    n = len(FITTED)
     half = np.array([centre[k][1] for k in FITTED])
     mid = np.array([centre[k][0] for k in FITTED])
+    lo, hi = _bounds(centre)
+    if fit_offset:
+        m = MAX_OFFSET / fit.ep.dt
+        lo, hi = np.append(lo, -m), np.append(hi, m)
 
-    def start_at(u: np.ndarray) -> Start:
-        return _start({**current, **dict(zip(FITTED, (mid + half * u).tolist(), strict=True))})
+    def start_at(v: np.ndarray) -> Start:
+        return _start({**current, **dict(zip(FITTED, (mid + half * v[:n]).tolist(), strict=True))})
+
+    def shift_of(v: np.ndarray) -> float:
+        return float(v[n]) if fit_offset else 0.0
+
+    def jacobian(v: np.ndarray, at: _Probe) -> np.ndarray | None:
+        eye = np.eye(len(v))
+        moved = [v + FD_STEP * eye[j] for j in range(n)] + [v - FD_STEP * eye[j] for j in range(n)]
+        runs = fit.run([start_at(x) for x in moved], [shift_of(x) for x in moved])
+        if any(r is None for r in runs):
+            return None
+        cols = [(runs[j].z - runs[n + j].z) / (2 * FD_STEP) for j in range(n)]  # type: ignore[union-attr]
+        if fit_offset:
+            late, early = fit.residuals(at.result, shift_of(v) + OFFSET_STEP), fit.residuals(at.result, shift_of(v)
+                                                                                               - OFFSET_STEP)
+            cols.append((late.z - early.z) / (2 * OFFSET_STEP))  # type: ignore[union-attr]
+        return np.stack(cols, axis=1)
 
     u = np.array([(current[k] - centre[k][0]) / centre[k][1] for k in FITTED])
-    best, lam, seen = misfit(probe), LAMBDA0, np.zeros(len(FITTED), dtype=bool)
+    if fit_offset:
+        u = np.append(u, probe.shift if probe is not None else 0.0)
+    best, lam, seen = misfit(probe), LAMBDA0, np.zeros(len(u), dtype=bool)
     jac: np.ndarray | None = None
     for _ in range(LM_ITERATIONS):
         if probe is None:
             break
         z = probe.z
         if jac is None:  # a new point: its Jacobian (kept while trial steps from it are rejected)
-            eye = np.eye(len(FITTED))
-            runs = fit.run([start_at(u + FD_STEP * e) for e in eye] + [start_at(u - FD_STEP * e) for e in eye])
-            probes = [p.z for p in runs if p is not None]
-            if len(probes) < len(runs):
+            jac = jacobian(u, probe)
+            if jac is None:
                 break
-            n = len(FITTED)
-            jac = np.stack([(probes[i] - probes[n + i]) / (2 * FD_STEP) for i in range(n)], axis=1)
             seen |= np.sum(jac**2, axis=0) >= SEEN
         if not seen.any():
             break
@@ -283,10 +342,10 @@ def _levenberg_marquardt(fit: _Fit, centre: dict[str, tuple[float, float]], curr
         g = jac[:, seen].T @ (w * z)
         trials = []
         for f in DAMPING:
-            step = np.zeros(len(FITTED))
+            step = np.zeros(len(u))
             step[seen] = -np.linalg.solve(a + lam * f * np.diag(np.diag(a)), g)
-            trials.append(np.clip(u + step, *_bounds(centre)))
-        results = fit.run([start_at(t) for t in trials])
+            trials.append(np.clip(u + step, lo, hi))
+        results = fit.run([start_at(t) for t in trials], [shift_of(t) for t in trials])
         costs = [misfit(r) for r in results]
         k = int(np.argmin(costs))
         if costs[k] >= best:
@@ -298,16 +357,13 @@ def _levenberg_marquardt(fit: _Fit, centre: dict[str, tuple[float, float]], curr
         u, probe, best, lam, jac = trials[k], results[k], costs[k], lam * DAMPING[k], None
         if done:
             break
-    current.update(zip(FITTED, (mid + half * u).tolist(), strict=True))
+    current.update(zip(FITTED, (mid + half * u[:n]).tolist(), strict=True))
     if probe is not None and jac is None:  # the Jacobian where the fit ended, for the covariance
-        eye = np.eye(len(FITTED))
-        runs = fit.run([start_at(u + FD_STEP * e) for e in eye] + [start_at(u - FD_STEP * e) for e in eye])
-        if all(r is not None for r in runs):
-            n = len(FITTED)
-            jac = np.stack([(runs[i].z - runs[n + i].z) / (2 * FD_STEP) for i in range(n)], axis=1)  # type: ignore[union-attr]
+        jac = jacobian(u, probe)
+        if jac is not None:
             seen |= np.sum(jac**2, axis=0) >= SEEN
-    cov = _covariance(probe, jac, seen, len(fit.names))
-    return probe, tuple(k for k, s in zip(FITTED, seen, strict=True) if not s), cov
+    cov = _covariance(probe, None if jac is None else jac[:, :n], seen[:n], len(fit.names))
+    return probe, tuple(k for k, s in zip(FITTED, seen[:n], strict=True) if not s), cov
 
 
 def _covariance(probe: _Probe | None, jac: np.ndarray | None, seen: np.ndarray, channels: int) -> np.ndarray:
@@ -331,7 +387,7 @@ def _covariance(probe: _Probe | None, jac: np.ndarray | None, seen: np.ndarray, 
     return cov
 
 
-def _early_end(nominal: SimResult, rows: int, skip: int) -> int:
+def fitted_rows(nominal: SimResult, rows: int, skip: int = 0) -> int:
     """End of the rows the start is fitted on: the first contact with the pile in the nominal replay (the soil
     resistance ``R_x`` departs from its start by :data:`CONTACT` of its range), then :data:`EARLY_SHARE` of the
     rows after it; all rows when the replay failed or never meets the pile."""

@@ -14,11 +14,13 @@ from discrepancy.data.episode import EpisodeData, signal_spread
 from discrepancy.data.fieldlog import (
     InputReport,
     command_timing,
+    delayed,
     first_order_filter,
     jittered_commands,
     moved_commands,
     resample_commands,
 )
+from discrepancy.twin.plant import Plan
 from discrepancy.twin.runner import SerialRunner
 from discrepancy.twin.start import PILE, estimate_start
 from scaletwin_envs.specs import make_loader, make_soil
@@ -103,3 +105,36 @@ def test_start_and_sensor_filter_estimated_together(filtered_log: tuple[TwinSpec
     unfiltered = estimate_start(ep, SerialRunner(twin))
     assert unfiltered.sensor_tau == 0.0
     assert est.misfit < unfiltered.misfit
+
+
+OFFSET = 0.25  # s: the log's signals lag its commands by this much
+
+
+def test_start_and_time_offset_estimated_together(filtered_log: tuple[TwinSpec, EpisodeData]) -> None:
+    """A log whose clock runs behind its commands: fitted alone, the start takes the lag for a pile met later;
+    fitted together, the offset comes out and the pile stays where it is."""
+    twin, ep = filtered_log
+    real = dataclasses.replace(twin, env_kwargs={"reset_noise_scale": 0.0, **TRUTH})
+    clean, _ = simulate(real, [], 3)
+    rng = np.random.default_rng(9)
+    spread = signal_spread(clean.signals)
+    signals = {k: delayed(v[:STEPS], DT, OFFSET) + 0.003 * spread[k] * rng.standard_normal(STEPS)
+               for k, v in clean.signals.items()}
+    late = dataclasses.replace(ep, signals=signals)
+    est = estimate_start(late, SerialRunner(twin), fit_offset=True)
+    assert est.offset == pytest.approx(OFFSET, abs=0.03)
+    assert dict(est.options)["pile_distance"] == pytest.approx(TRUTH["pile_distance"], rel=0.02)
+    assert estimate_start(ep, SerialRunner(twin), profile_filter=True, fit_offset=True).offset == 0.0
+
+
+def test_twin_read_at_the_logs_times_is_its_replay_delayed() -> None:
+    """Two routes to the twin a late logger sees: a twin spec with ``time_offset`` replays what the plain replay,
+    delayed by ``delayed``, gives."""
+    twin = TwinSpec(make_loader("er12"), make_soil("sand"), {}, 2)
+    commands = simulate(twin, [], 2)[0].commands[:30]
+    plain = SerialRunner(twin).run_many(commands, [Plan()])[0]
+    late = SerialRunner(dataclasses.replace(twin, time_offset=0.17)).run_many(commands, [Plan()])[0]
+    for k in ("F21", "lift_extension", "travel_speed"):
+        np.testing.assert_allclose(late.signals[k], delayed(plain.signals[k], DT, 0.17), rtol=0, atol=1e-9)
+    x = np.linspace(0.0, 3.0, 31)
+    np.testing.assert_allclose(delayed(2.0 * x, DT, 0.2)[5:], 2.0 * (x[5:] - 0.2), atol=1e-12)  # a ramp, 0.2 s late
