@@ -168,18 +168,24 @@ def check_rows(target: pd.DataFrame, groups: tuple[Any, ...]) -> pd.DataFrame:
 def held_out_metrics(result: GeneralisationResult, name: str, presets: tuple[str, ...]
                      ) -> tuple[dict[str, dict[str, Any]], dict[str, Any]]:
     """(per held-out machine, summary over the drawn ones, ``presets`` left out) of the judged model ``name``: F21
-    errors, the served interval's coverage, the served error score's warnings, matched direct-Pi beside them."""
+    errors, the served interval's coverage, the served error score's warnings, matched direct-Pi beside them.
+
+    Where no error score was learnt (no calibration row more than 10 % off, or every one:
+    ``result.extrapolation["row_risk_unavailable"]``), the risk figures are None and the summary's
+    ``risk_unavailable`` says why; otherwise ``risk_unavailable`` is None."""
     table = result.frame()
     ours = table[table["model"] == name].set_index("machine")
     base = table[table["model"] == "direct-Pi (nearest machine)"].set_index("machine")
-    warned, false_alarms = (result.extrapolation[k][name] for k in ("row_risk_warn_share", "row_risk_false_alarms"))
+    unavailable = risk_unavailable(result, name)
+    warned, false_alarms = ({} if unavailable else result.extrapolation[k][name]
+                            for k in ("row_risk_warn_share", "row_risk_false_alarms"))
     per_machine = {m: {"source": r.source, "dynamic_mape_pct": r.dynamic_mape, "static_mape_pct": r.static_mape,
                        "peak_error_pct": r.peak_error, "interval_coverage": r.coverage_served,
                        "pooled_interval_coverage": r.coverage_spread, "rows": r.rows,
                        "rows_over_10pct": r.miss_share,
                        "direct_pi_dynamic_mape_pct": float(base.loc[m, "dynamic_mape"]),
                        "direct_pi_static_mape_pct": float(base.loc[m, "static_mape"]),
-                       "risk_warned_share": warned[m], "risk_false_alarms": false_alarms[m]}
+                       "risk_warned_share": warned.get(m), "risk_false_alarms": false_alarms.get(m)}
                    for m, r in ours.iterrows()}
     drawn = ours.drop(index=list(presets), errors="ignore")
     summary = {"drawn_test_machines": len(drawn),
@@ -190,10 +196,20 @@ def held_out_metrics(result: GeneralisationResult, name: str, presets: tuple[str
                "interval_coverage_min": float(drawn["coverage_served"].min()),
                "interval_coverage_max": float(drawn["coverage_served"].max()),
                "interval_machines_85_95": int(drawn["coverage_served"].between(0.85, 0.95).sum()),
-               "risk_auroc": result.extrapolation["auroc_row_risk"][name],
-               "risk_warned_share_median": float(np.median([warned[m] for m in drawn.index])),
-               "risk_false_alarms_median": float(np.median([false_alarms[m] for m in drawn.index]))}
+               "risk_auroc": None if unavailable else result.extrapolation["auroc_row_risk"][name],
+               "risk_warned_share_median": None if unavailable else float(np.median([warned[m] for m in drawn.index])),
+               "risk_false_alarms_median": (None if unavailable
+                                            else float(np.median([false_alarms[m] for m in drawn.index]))),
+               "risk_unavailable": unavailable}
     return per_machine, summary
+
+
+def risk_unavailable(result: GeneralisationResult, name: str) -> str | None:
+    """Why the judged model ``name`` has no served error score (None: it has one)."""
+    risk = result.row_risk.get(name)
+    if risk is None:
+        return "no error score was fitted for this model"
+    return risk.unavailable if risk.score is None else None
 
 
 def card_fields(model: DeltaModel, result: GeneralisationResult, reference: pd.Series, check: pd.DataFrame,
@@ -213,7 +229,9 @@ def card_fields(model: DeltaModel, result: GeneralisationResult, reference: pd.S
     if cfg.sources > 1:
         per_k, summary_k = held_out_metrics(result, cfg.multi_name, cfg.layout.test_presets)
         multi = {"interval": {"sources": cfg.sources, "learned_scale": result.row_interval[cfg.multi_name].state(),
-                              "risk": result.row_risk[cfg.multi_name].score.state(),
+                              "risk": (None if (multi_score := result.row_risk[cfg.multi_name].score) is None
+                                       else multi_score.state()),
+                              "risk_unavailable": risk_unavailable(result, cfg.multi_name),
                               "description": f"from {cfg.sources} sources (ScalingModel.scale_force_sources): the "
                                              "geometric mean of the F21 each source gives; its ln δ1 (that of the "
                                              "first source which recovers the mean) ± q·s(x) and its error score "
@@ -267,13 +285,17 @@ def card_fields(model: DeltaModel, result: GeneralisationResult, reference: pd.S
             "held_out_machines": per_machine,
             "summary": summary,
             **({"multi_source": {"sources": cfg.sources, **multi["metrics"]}} if multi else {}),
+            "risk_unavailable": summary["risk_unavailable"],
             "risk_note": "served per row (ScaledForce.risk): P(F21 more than 10 % off) from the novelty of the "
                          "row's features among the training pairs', |ln δ1|, whether the bucket is at rest and the "
                          "tilt load (tilt-cylinder force over its relief force), "
                          "fitted on the calibration machines; risk_auroc: how well it separates the held-out "
                          "machines' rows more than 10 % off (0.5 = chance); it warns above a threshold that keeps "
                          "the warnings to at most 5 % of the rows of 90 % of the calibration machines; false alarms: "
-                         "the share of rows at most 10 % off that it warns on",
+                         "the share of rows at most 10 % off that it warns on; where no calibration row was more "
+                         "than 10 % off (or every one was) no error score can be learnt: risk_unavailable says so, "
+                         "the risk figures are null, ScaledForce.risk is None and the served model says so "
+                         "(ScalingModel.risk_unavailable); the interval is served as usual",
             "note": "machines never trained on nor used for calibration (drawn with another seed, plus the mini and "
                     "wa475 presets); rows after start-up settling with F21 > 5 % of the machine's peak; dynamic = "
                     "dig cycles and moves, static = bucket held still; source = the nearest training machine by "

@@ -17,7 +17,8 @@ them name each machine's design (``--target-design``, ``--source-design``: a pre
 JSON) and the signals are computed from the pose, cylinder extensions, payload and tilt-cylinder force
 (:func:`scaling.data.product_line.add_design_signals`). The output holds the
 target's ``machine``/``episode``/``t``/``time`` columns (if any) and ``F21 [N]``, ``F21_lower [N]``, ``F21_upper [N]``,
-``delta1 [1]``, ``extrapolated`` (and ``risk [1]`` where the model serves an error score); it is printed as CSV
+``delta1 [1]``, ``extrapolated`` (and ``risk [1]`` where the model serves an error score; a product-line
+checkpoint whose build learnt none says so on stderr); it is printed as CSV
 when ``--out`` is not given.
 
 Every ``name [unit]`` header of both files is checked, whether or not the model uses the column: a quantity
@@ -318,6 +319,10 @@ def run(args: argparse.Namespace) -> int:
             raise naming_files(exc, files) from exc
     for w in caught:
         print(f"scaletwin predict: warning: {w.message}", file=sys.stderr)
+    reason = model.sources_risk_unavailable() if len(sources) > 1 else model.risk_unavailable
+    if model.risk is not None and result.risk is None and reason:  # a product-line model whose build learnt none
+        print(f"scaletwin predict: note: {model.name} serves no risk score (no risk [1] column): {reason}",
+              file=sys.stderr)
     out = result.to_frame()
     for col in reversed([c for c in target.columns if split_header(c)[0] in KEEP]):
         out.insert(0, col, target[col].to_numpy())

@@ -452,10 +452,17 @@ class RowRisk:
     force over its relief force; where it is small, F21 is a small difference of large link forces and the linkage
     statics that π1 rests on are least reliable); an :class:`ErrorScore` on those four, fitted on the calibration
     machines. The benchmark's error score adds the ensemble's spread and the design distance, which a served point
-    model does not have."""
+    model does not have.
+
+    ``score`` is None where no error score could be learnt: every calibration row on one side of the miss line
+    (typically none more than ``miss`` off), so there is no example of a miss to learn from. ``unavailable`` then
+    says why; the novelty is still fitted (the learned interval, :class:`RowInterval`, reads it) and :meth:`risk`
+    refuses."""
 
     novelty: InputNovelty
-    score: ErrorScore
+    score: ErrorScore | None
+    #: why there is no error score (None when there is one)
+    unavailable: str | None = None
 
     FEATURES: ClassVar[tuple[str, ...]] = ("ln novelty of the model's feature row", "|ln δ1| predicted",
                                            "bucket at rest (1) or moving (0)", "ln tilt load")
@@ -478,22 +485,40 @@ class RowRisk:
             tilt_load: np.ndarray, error: np.ndarray, groups: np.ndarray, *, miss: float = 0.10,
             seed: int = 0) -> RowRisk:
         """``train_g``: feature rows of the training pairs; the rest: calibration rows (their machine in
-        ``groups``, the relative error of the prediction in ``error``)."""
+        ``groups``, the relative error of the prediction in ``error``). Where the calibration rows are all on one
+        side of the miss line, the result has no error score (``score`` None, the reason in ``unavailable``)."""
         novelty = InputNovelty(seed=seed).fit(train_g)
-        return cls(novelty, ErrorScore(miss).fit(cls.features(novelty, g, log_delta, static, tilt_load), error,
-                                                 groups))
+        try:
+            score = ErrorScore(miss).fit(cls.features(novelty, g, log_delta, static, tilt_load), error, groups)
+        except ValueError as exc:
+            return cls(novelty, None, str(exc))
+        return cls(novelty, score)
+
+    def _score(self) -> ErrorScore:
+        if self.score is None:
+            raise ValueError(f"no error score was learnt: {self.unavailable}")
+        return self.score
 
     def risk(self, g: np.ndarray, log_delta: np.ndarray, static: np.ndarray, tilt_load: np.ndarray) -> np.ndarray:
-        """P(error > miss) per row."""
-        return self.score.score(self.features(self.novelty, g, log_delta, static, tilt_load))
+        """P(error > miss) per row.
+
+        Raises:
+            ValueError: no error score was learnt (``score`` None).
+        """
+        return self._score().score(self.features(self.novelty, g, log_delta, static, tilt_load))
 
     def warns(self, g: np.ndarray, log_delta: np.ndarray, static: np.ndarray, tilt_load: np.ndarray) -> np.ndarray:
-        return self.score.warns(self.features(self.novelty, g, log_delta, static, tilt_load))
+        return self._score().warns(self.features(self.novelty, g, log_delta, static, tilt_load))
 
     def state(self) -> tuple[dict[str, Any], np.ndarray]:
-        """(JSON-able parameters, the novelty's training rows)."""
+        """(JSON-able parameters, the novelty's training rows); ``score`` None and ``unavailable`` its reason where
+        no error score was learnt."""
         params, rows = self.novelty.state()
-        return {"features": list(self.FEATURES), "novelty": params, "score": self.score.state()}, rows
+        out = {"features": list(self.FEATURES), "novelty": params,
+               "score": None if self.score is None else self.score.state()}
+        if self.score is None:
+            out["unavailable"] = self.unavailable
+        return out, rows
 
     @classmethod
     def from_state(cls, params: dict[str, Any], rows: np.ndarray) -> RowRisk:
@@ -505,7 +530,10 @@ class RowRisk:
         if list(params.get("features", [])) != list(cls.FEATURES):
             raise ValueError(f"the error score was fitted on features {params.get('features')}, this version "
                              f"computes {list(cls.FEATURES)}: rebuild the checkpoint (scaletwin zoo build)")
-        return cls(InputNovelty.from_state(params["novelty"], rows), ErrorScore.from_state(params["score"]))
+        score = params["score"]
+        return cls(InputNovelty.from_state(params["novelty"], rows),
+                   None if score is None else ErrorScore.from_state(score),
+                   None if score is not None else str(params.get("unavailable") or "no error score was learnt"))
 
 
 @dataclass

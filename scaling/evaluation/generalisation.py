@@ -198,8 +198,10 @@ class GeneralisationResult:
     a model needs: the fitted ``models``, each model's ln δ1 residuals on the calibration machines with the machine
     of each row (``calibration``), the feature range of its training pairs (``training_range``: min, max) and a
     seeded sample of at most :data:`TRAINING_SAMPLE` of their feature rows (``training_sample``) and the
-    risk and interval a served model can compute per row (``row_risk``, :class:`~scaling.evaluation.conformal.RowRisk`;
-    ``row_interval``, :class:`~scaling.evaluation.conformal.RowInterval`)."""
+    risk and interval a served model can compute per row (``row_risk``, :class:`~scaling.evaluation.conformal.RowRisk`,
+    whose ``score`` is None where no calibration row missed, the reason also in
+    ``extrapolation["row_risk_unavailable"]`` and no served-risk figures for it; ``row_interval``,
+    :class:`~scaling.evaluation.conformal.RowInterval`)."""
 
     rows: list[MachineResult]
     extrapolation: dict[str, Any] = field(default_factory=dict)
@@ -378,13 +380,15 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
             error_scores[name] = ErrorScore(MISS).fit(features, np.concatenate([c.err for c in cal]), grp)
         except ValueError as exc:  # no calibration row missed (or every one did): no risk to learn
             say(f"{name}: no error score ({exc})")
-            continue
         if models[name] is not None:
+            # the served interval needs only the novelty; the served error score may be missing (RowRisk.score None)
             cal_g, cal_log_pred = np.concatenate([c.g for c in cal]), np.concatenate([c.log_pred for c in cal])
             cal_load = np.concatenate([c.tilt_load for c in cal])
             risk = row_risks[name] = RowRisk.fit(training_sample[name], cal_g, cal_log_pred, features[:, -1],
                                                  cal_load, np.concatenate([c.err for c in cal]), grp, miss=MISS,
                                                  seed=seed)
+            if risk.score is None:
+                say(f"{name}: no served error score ({risk.unavailable})")
             row_intervals[name] = RowInterval.fit(RowRisk.features(risk.novelty, cal_g, cal_log_pred,
                                                                    features[:, -1], cal_load), residual, grp)
 
@@ -418,11 +422,12 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
             bucket[1].append(p.scale)
             bucket[2].append(risk)
             bucket[3].append(p.err > MISS)
-            if served_features is not None:
-                served_risk = row_risks[name].score.score(served_features)
+            served_score = row_risks[name].score if name in row_risks else None
+            if served_features is not None and served_score is not None:
+                served_risk = served_score.score(served_features)
                 served.setdefault(name, ([], []))[0].append(served_risk)
                 served[name][1].append(p.err > MISS)
-                warned = row_risks[name].score.above(served_risk)
+                warned = served_score.above(served_risk)
                 served_warn_share.setdefault(name, {})[m] = float(np.mean(warned))
                 fine = p.err <= MISS
                 served_false_alarms.setdefault(name, {})[m] = float(np.mean(warned[fine])) if fine.any() else 0.0
@@ -439,6 +444,7 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
         "auroc_design_distance": {}, "auroc_ensemble_spread": {}, "auroc_error_score": {}, "warn_share": warn_share,
         "auroc_row_risk": {name: auroc(np.concatenate(r), np.concatenate(y)) for name, (r, y) in served.items()},
         "row_risk_warn_share": served_warn_share, "row_risk_false_alarms": served_false_alarms,
+        "row_risk_unavailable": {name: r.unavailable for name, r in row_risks.items() if r.score is None},
         "error_score": {name: {"coef": None if e.coef_ is None else e.coef_.tolist(),
                                "threshold": e.threshold_,
                                "features": list(ERROR_FEATURES)} for name, e in error_scores.items()}}

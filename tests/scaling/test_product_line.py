@@ -576,6 +576,27 @@ def test_error_scores_survive_their_state() -> None:
         ErrorScore.from_state({**params["score"], "coef": params["score"]["coef"][:-1]})
 
 
+def test_row_risk_without_a_miss_has_no_score_but_keeps_its_novelty() -> None:
+    """No calibration row more than 10 % off: nothing to learn an error score from. RowRisk.fit says so (score
+    None, the reason in ``unavailable``) instead of raising, keeps the novelty (which the learned interval reads),
+    survives its state, and refuses to give a risk."""
+    rng = np.random.default_rng(7)
+    train_g, g = rng.normal(size=(400, 4)), rng.normal(size=(600, 4))
+    grp = np.repeat(np.arange(3), 200)
+    log_delta, static, load = rng.normal(0, 0.05, 600), rng.random(600) < 0.4, rng.uniform(0.0, 0.6, 600)
+    risk = RowRisk.fit(train_g, g, log_delta, static, load, np.full(600, 0.02), grp)
+    assert risk.score is None and "miss line" in str(risk.unavailable)
+    features = RowRisk.features(risk.novelty, g, log_delta, static, load)
+    assert features.shape == (600, 4) and np.isfinite(features).all()
+    params, rows = risk.state()
+    assert params["score"] is None and params["unavailable"] == risk.unavailable
+    again = RowRisk.from_state(json.loads(json.dumps(params)), rows)
+    assert again.score is None and again.unavailable == risk.unavailable
+    np.testing.assert_array_equal(RowRisk.features(again.novelty, g, log_delta, static, load), features)
+    with pytest.raises(ValueError, match="no error score was learnt"):
+        again.risk(g, log_delta, static, load)
+
+
 def test_auroc_is_the_pairwise_probability() -> None:
     """auroc equals P(score_pos > score_neg) + ½ P(tie) counted over all pairs; 1 / 0.5 / 0 on separable,
     identical and reversed scores; NaN without both classes."""

@@ -17,11 +17,12 @@ from safetensors.numpy import load_file
 import zoo
 from scaling.data.delta_dataset import DeltaDataset
 from scaling.data.product_line import PI1_LINKAGE, match_rows, nearest_machine, nearest_machines
-from scaling.evaluation.conformal import RowInterval, RowRisk, group_weighted_quantile
+from scaling.evaluation.conformal import ErrorScore, RowInterval, RowRisk, group_weighted_quantile
 from scaling.evaluation.generalisation import LeaveMachineOut, finite_groups, judged_rows, row_kinds, target_rows
 from scaling.models import load_model
 from scaling.models.fitted import model_groups
 from zoo.product_line import NAME, ProductLineBuild, build_product_line
+from zoo.scaling_kind import save_scaling_model
 
 TINY = LeaveMachineOut(n_train=3, n_calibration=2, n_test=1, soils=("gravel",), test_presets=("mini",),
                        pile_heights=(0.7,), hold_episodes=1)
@@ -51,6 +52,14 @@ def test_card_reports_every_held_out_machine(built: tuple[Path, Path, ProductLin
     assert card["training"]["calibration_machines"] == list(split.calibration)
     assert not set(card["training"]["machines"]) & set(metrics)  # no held-out machine was trained on
     assert card["training"]["model"]["config"]["include_source"] is True
+    summary = card["metrics"]["summary"]
+    if card["risk"]["score"] is None:  # no calibration row missed by > 10 % (or every one did): no error score
+        assert summary["risk_unavailable"] == card["metrics"]["risk_unavailable"] == card["risk"]["unavailable"]
+        assert "miss line" in summary["risk_unavailable"] and summary["risk_auroc"] is None
+        assert all(m["risk_warned_share"] is None and m["risk_false_alarms"] is None for m in metrics.values())
+    else:
+        assert summary["risk_unavailable"] is None and 0 <= summary["risk_auroc"] <= 1
+        assert all(0 <= m["risk_warned_share"] <= 1 for m in metrics.values())
 
 
 def test_interval_is_the_calibration_machines_quantile(built: tuple[Path, Path, ProductLineBuild]) -> None:
@@ -104,9 +113,7 @@ def test_served_model_predicts_on_matched_source_rows(built: tuple[Path, Path, P
     risk = RowRisk.from_state(card["risk"], load_file(str(path / card["risk"]["file"]))["novelty_rows"])
     static = row_kinds(pairs, tgt) == "static"
     load = tgt["tilt_load"].to_numpy(float)[target_rows(pairs, tgt)]
-    assert out.risk is not None and np.all((out.risk >= 0) & (out.risk <= 1))
-    np.testing.assert_allclose(out.risk, risk.risk(model.features(pairs), model.predict_log(pairs), static, load),
-                               rtol=1e-6, atol=1e-9)
+    _check_served_risk(out, risk, model.features(pairs), model.predict_log(pairs), static, load)
     # the served interval: ln δ1 ± q·s(x) on the same features, F21 = F21_linkage·π1(source)/δ1
     assert out.interval_method == card["interval"]["method"] == "learned-scale"
     half = RowInterval.from_state(card["interval"]["learned_scale"]).half_width(
@@ -150,7 +157,7 @@ def test_risk_can_be_skipped_for_throughput(built: tuple[Path, Path, ProductLine
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         fast = served.scale_force(source, tgt, risk=False)
-    assert fast.risk is None and full.risk is not None
+    assert fast.risk is None and (full.risk is not None) == (served.risk_unavailable is None)
     np.testing.assert_array_equal(fast.force, full.force)
     assert (fast.interval_method, full.interval_method) == ("residual-quantiles", "learned-scale")
     q_lo, q_hi = zoo.card(path)["interval"]["log_delta_residual_quantiles"]["0.9"]
@@ -185,7 +192,7 @@ def test_predict_command_pairs_rows_for_a_product_line_model(built: tuple[Path, 
         warnings.simplefilter("ignore", zoo.ExtrapolationWarning)
         expected = served.scale_force(src.iloc[match_rows(src, tgt)].reset_index(drop=True), tgt)
     np.testing.assert_allclose(out["F21 [N]"], expected.force, rtol=1e-9)
-    np.testing.assert_allclose(out["risk [1]"], expected.risk, rtol=1e-9)
+    _check_risk_column(out, expected.risk)
     assert "paired with its nearest" in capsys.readouterr().err
     tgt.drop(columns=["bucket_pitch"]).to_csv(tmp_path / "bad.csv", index=False)
     capsys.readouterr()
@@ -235,7 +242,7 @@ def test_predict_command_computes_the_design_signals_from_the_designs_named(
                      "--target", str(tgt_file), "--target-design", design, "--out", str(tmp_path / "out.csv")]) == 0
         out = pd.read_csv(tmp_path / "out.csv")
         np.testing.assert_allclose(out["F21 [N]"], expected.force, rtol=1e-9)
-        np.testing.assert_allclose(out["risk [1]"], expected.risk, rtol=1e-9)
+        _check_risk_column(out, expected.risk)
     capsys.readouterr()
     bad = [(["--target-design", "excavator"], "not a preset"),
            (["--target-design", f"{tmp_path / 'machines.json'}#pl9-9"], "pl1-0"),
@@ -250,6 +257,23 @@ def test_predict_command_computes_the_design_signals_from_the_designs_named(
                  "--target", str(tmp_path / "no_load.csv"), "--target-design", "er12"]) == 2
     err = capsys.readouterr().err
     assert "no_load.csv" in err and "m_load" in err
+
+
+def _check_served_risk(out: zoo.ScaledForce, risk: RowRisk, g: np.ndarray, log_delta: np.ndarray,
+                       static: np.ndarray, load: np.ndarray) -> None:
+    """``out.risk`` is the card's error score on the judge's features, or None where the card has no score."""
+    if risk.score is None:
+        assert out.risk is None and out.warned is None
+        return
+    assert out.risk is not None and np.all((out.risk >= 0) & (out.risk <= 1))
+    np.testing.assert_allclose(out.risk, risk.risk(g, log_delta, static, load), rtol=1e-6, atol=1e-9)
+
+
+def _check_risk_column(table: pd.DataFrame, risk: np.ndarray | None) -> None:
+    if risk is None:
+        assert "risk [1]" not in table.columns
+    else:
+        np.testing.assert_allclose(table["risk [1]"], risk, rtol=1e-9)
 
 
 def _judged_target(frame: pd.DataFrame, machine: str, groups: tuple) -> pd.DataFrame:
@@ -285,7 +309,10 @@ def test_three_sources_serve_the_judged_prediction_and_coverage(built: tuple[Pat
         np.testing.assert_allclose(out.force, np.exp(np.mean(np.log(singles), axis=0)), rtol=1e-9)
         assert out.interval_method == "learned-scale, 3 sources"
         assert np.all(out.lower <= out.force) and np.all(out.force <= out.upper)
-        assert out.risk is not None and np.all((out.risk >= 0) & (out.risk <= 1))
+        if served.sources_risk_unavailable() is None:
+            assert out.risk is not None and np.all((out.risk >= 0) & (out.risk <= 1))
+        else:
+            assert out.risk is None
         f21 = tgt["F21"].to_numpy(float)
         covered = float(np.mean((out.lower <= f21) & (f21 <= out.upper)))
         judged = card["metrics"]["multi_source"]["held_out_machines"][machine]["interval_coverage"]
@@ -325,3 +352,120 @@ def test_predict_command_takes_one_source_per_calibrated_machine(built: tuple[Pa
     capsys.readouterr()
     assert main(["predict", "--model", str(path), *files[:4], "--target", str(tmp_path / "tgt.csv")]) == 2
     assert "calibrated for 3 source(s), not 2" in capsys.readouterr().err
+
+
+def _resaved(path: Path, out: Path, score: ErrorScore | None, reason: str | None) -> Path:
+    """The checkpoint at ``path`` saved again at ``out`` with the error score ``score`` (one source and three), or,
+    with ``score`` None, as a build that learnt none writes it: the novelty kept (the learned interval reads it),
+    no score, ``reason`` on the card and in its metrics, the risk figures null."""
+    card = zoo.card(path)
+    served = zoo.load(path)
+    assert served.risk is not None
+    skip = ("files", "risk", "format_version", "kind", "versions", "created", "model")
+    fields = {k: v for k, v in card.items() if k not in skip}
+    multi = card["interval"]["multi_source"]
+    fields["interval"] = {**card["interval"], "multi_source": {
+        **multi, "risk": None if score is None else score.state(), "risk_unavailable": reason}}
+    if score is None:
+        metrics = card["metrics"]
+        fields["metrics"] = {**metrics, "risk_unavailable": reason,
+                             "summary": {**metrics["summary"], "risk_unavailable": reason, "risk_auroc": None,
+                                         "risk_warned_share_median": None, "risk_false_alarms_median": None},
+                             "held_out_machines": {m: {**v, "risk_warned_share": None, "risk_false_alarms": None}
+                                                   for m, v in metrics["held_out_machines"].items()}}
+    return save_scaling_model(load_model(path), out, fields, risk=RowRisk(served.risk.novelty, score, reason))
+
+
+def test_a_checkpoint_with_an_error_score_serves_it(built: tuple[Path, Path, ProductLineBuild],
+                                                     tmp_path: Path) -> None:
+    """Where the card has an error score, the served risk is that score on the served features (computed here
+    from the judge's side: the pairs and the target rows they came from), the rows above its threshold are the
+    warned ones and a warning counts them; from three sources a risk is served too. The score is hand-set here, so
+    this path is tested whichever side of the miss line the tiny line's calibration rows fall."""
+    path, _, cfg = built
+    score = ErrorScore.from_state({"miss": 0.1, "warn_quantile": 0.95, "l2": 0.01, "machine_share": 0.9,
+                                   "mean": [0.0] * 4, "std": [1.0] * 4, "coef": [-1.0, 0.5, 3.0, -0.5, -0.8],
+                                   "threshold": 0.3})
+    scored_path = _resaved(path, tmp_path / "scored", score, None)
+    scored, model = zoo.load(scored_path), load_model(scored_path)
+    assert scored.risk_unavailable is None and scored.sources_risk_unavailable() is None
+    frame = cfg.layout.load(cfg.data_dir, executor="serial", progress=False)
+    groups = model_groups(model)[1]
+    tgt = _judged_target(frame, "pl1-0", groups)
+    src = frame[frame["machine"] == "er12"].reset_index(drop=True)
+    source = src.iloc[match_rows(src, tgt)].reset_index(drop=True)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", zoo.ExtrapolationWarning)
+        out = scored.scale_force(source, tgt.drop(columns=["F21"]))
+    pairs = DeltaDataset.from_matched(source, tgt, PI1_LINKAGE, groups)
+    static = row_kinds(pairs, tgt) == "static"
+    load = tgt["tilt_load"].to_numpy(float)[target_rows(pairs, tgt)]
+    assert scored.risk is not None and scored.risk.score is not None
+    _check_served_risk(out, scored.risk, model.features(pairs), model.predict_log(pairs), static, load)
+    assert out.risk is not None and out.warned is not None
+    np.testing.assert_array_equal(out.warned, score.above(out.risk))
+    assert any(f"{int(out.warned.sum())} of {len(tgt)} target rows are likely" in str(w.message)
+               for w in caught) == bool(out.warned.any())
+    split = cfg.layout.split()
+    names = nearest_machines(split.specs["pl1-0"], {m: split.specs[m] for m in split.train}, 3)
+    sources = []
+    for name in names:
+        rows = frame[frame["machine"] == name].reset_index(drop=True)
+        sources.append(rows.iloc[match_rows(rows, tgt)].reset_index(drop=True))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", zoo.ExtrapolationWarning)
+        out3 = scored.scale_force_sources(sources, tgt)
+    assert out3.risk is not None and np.all((out3.risk >= 0) & (out3.risk <= 1))
+
+
+def test_a_checkpoint_without_an_error_score_serves_and_says_so(built: tuple[Path, Path, ProductLineBuild],
+                                                                 tmp_path: Path,
+                                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    """Where no calibration row is more than 10 % off (or every one is) the build learns no error score: the card
+    says why (``metrics.risk_unavailable``, the risk figures null), the checkpoint still loads and serves the same
+    forces and learned intervals, from one source and from three, with ``out.risk`` None and the reason in
+    ``ScalingModel.risk_unavailable``, and ``scaletwin predict`` says on stderr that no risk column is served. The
+    score is removed from the tiny line's checkpoint here, so this path is tested whichever side of the miss line
+    the tiny line's calibration rows fall."""
+    from scaletwin.cli import main
+
+    path, _, cfg = built
+    reason = "calibration rows are all on one side of the 10% miss line: nothing to learn an error score from"
+    bare_path = _resaved(path, tmp_path / "bare", None, reason)
+    bare, served = zoo.load(bare_path), zoo.load(path)
+    assert bare.risk is not None and bare.risk.score is None
+    assert bare.risk_unavailable == reason and bare.sources_risk_unavailable() == reason
+    assert zoo.card(bare_path)["metrics"]["summary"]["risk_unavailable"] == reason
+    frame = cfg.layout.load(cfg.data_dir, executor="serial", progress=False)
+    groups = model_groups(served.model)[1]
+    tgt = _judged_target(frame, "pl1-0", groups)
+    src = frame[frame["machine"] == "er12"].reset_index(drop=True)
+    source = src.iloc[match_rows(src, tgt)].reset_index(drop=True)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", zoo.ExtrapolationWarning)
+        out, ref = bare.scale_force(source, tgt.drop(columns=["F21"])), served.scale_force(source, tgt)
+    assert out.risk is None and out.warned is None and "risk [1]" not in out.to_frame()
+    assert out.interval_method == ref.interval_method == "learned-scale"
+    for a, b in ((out.force, ref.force), (out.lower, ref.lower), (out.upper, ref.upper)):
+        np.testing.assert_array_equal(a, b)
+    names = nearest_machines(cfg.layout.split().specs["pl1-0"], {m: cfg.layout.split().specs[m]
+                                                                  for m in cfg.layout.split().train}, 3)
+    sources = []
+    for name in names:
+        rows = frame[frame["machine"] == name].reset_index(drop=True)
+        sources.append(rows.iloc[match_rows(rows, tgt)].reset_index(drop=True))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", zoo.ExtrapolationWarning)
+        out3, ref3 = bare.scale_force_sources(sources, tgt), served.scale_force_sources(sources, tgt)
+    assert out3.risk is None and out3.interval_method == ref3.interval_method
+    np.testing.assert_array_equal(out3.upper, ref3.upper)
+    keep = ["kind", *dict.fromkeys([*bare.source_variables, "boom_angle", "bucket_pitch", "fill"])]
+    src[keep].to_csv(tmp_path / "src.csv", index=False)
+    tgt[["kind", *dict.fromkeys([*bare.target_variables, *keep[-3:]])]].to_csv(tmp_path / "tgt.csv", index=False)
+    capsys.readouterr()
+    assert main(["predict", "--model", str(bare_path), "--source", str(tmp_path / "src.csv"), "--target",
+                 str(tmp_path / "tgt.csv"), "--out", str(tmp_path / "out.csv")]) == 0
+    assert f"serves no risk score (no risk [1] column): {reason}" in capsys.readouterr().err
+    table = pd.read_csv(tmp_path / "out.csv")
+    assert "risk [1]" not in table.columns
+    np.testing.assert_allclose(table["F21 [N]"], ref.force, rtol=1e-9)

@@ -176,14 +176,15 @@ class ScalingModel:
             self._row_interval = RowInterval.from_state(interval["learned_scale"])
         self._quantiles = {float(c): (float(q[0]), float(q[1]))
                            for c, q in interval.get("log_delta_residual_quantiles", {}).items()}
-        #: (sources, interval, error score) of :meth:`scale_force_sources`, where the card calibrates one
-        self._multi: tuple[int, RowInterval, ErrorScore] | None = None
+        #: (sources, interval, error score or None where none was learnt) of :meth:`scale_force_sources`, where the
+        #: card calibrates one
+        self._multi: tuple[int, RowInterval, ErrorScore | None] | None = None
         if "multi_source" in interval:
             if risk is None:
                 raise ValueError("a multi-source interval needs the checkpoint's risk (its novelty rows)")
             multi = interval["multi_source"]
             self._multi = (int(multi["sources"]), RowInterval.from_state(multi["learned_scale"]),
-                           ErrorScore.from_state(multi["risk"]))
+                           None if multi.get("risk") is None else ErrorScore.from_state(multi["risk"]))
         rng = card["training_range"]
         g_min, g_max = np.asarray(rng["min"], dtype=float), np.asarray(rng["max"], dtype=float)
         n_features = transform.n_features(len(inputs))
@@ -302,7 +303,8 @@ class ScalingModel:
                 episode one row long, as in :func:`scaling.evaluation.miniature.static_rows`) has no history to run, so
                 each row is held for :data:`~scaling.models.fitted.STATIC_STEPS` steps, as in the miniature validation.
             threads: cores for a large batch (default every usable core; see :meth:`predict_array`).
-            risk: compute the per-row error score where the checkpoint has one (``out.risk``; a nearest-neighbour
+            risk: compute the per-row error score where the checkpoint has one (``out.risk``; None where it has
+                none, :attr:`risk_unavailable` says why; a nearest-neighbour
                 query per row, about 20 000 rows/s per core); ``False`` skips it for throughput, and a
                 ``learned-scale`` interval then falls back to the pooled residual quantiles
                 (``out.interval_method`` says which).
@@ -331,6 +333,26 @@ class ScalingModel:
         return model.predict_array(x, coverage=coverage, sequences=seqs, threads=threads, risk=risk)
 
     @property
+    def risk_unavailable(self) -> str | None:
+        """Why this checkpoint serves no per-row error score (``ScaledForce.risk`` None), or None where it serves
+        one. A product-line checkpoint learns its error score on the calibration machines' rows more than 10 % off;
+        where none was (or every row was), there is nothing to learn it from and the card says so
+        (``metrics.risk_unavailable``); its interval is served as usual. Checkpoints of a kind that never has an
+        error score (the paper's) say so too."""
+        if self.risk is None:
+            return "this checkpoint has no error score (its warnings come from the training range)"
+        return None if self.risk.score is not None else (self.risk.unavailable or "no error score was learnt")
+
+    def sources_risk_unavailable(self) -> str | None:
+        """As :attr:`risk_unavailable`, for :meth:`scale_force_sources` (None: it serves a risk)."""
+        if self._multi is None:
+            return "this checkpoint has no multi-source calibration"
+        if self._multi[2] is not None:
+            return None
+        multi = self.card["interval"]["multi_source"]
+        return str(multi.get("risk_unavailable") or "no error score was learnt for several sources")
+
+    @property
     def calibrated_sources(self) -> int | None:
         """How many source machines :meth:`scale_force_sources` is calibrated for (None: the card has no
         multi-source interval; use :meth:`scale_force`)."""
@@ -350,7 +372,8 @@ class ScalingModel:
         Args:
             sources: one entry per source machine (:attr:`calibrated_sources` of them), each one row or one
                 matched row per target row (:func:`scaling.data.product_line.match_rows`), any accepted form.
-            target, coverage, threads: as for :meth:`scale_force` (the risk is always computed).
+            target, coverage, threads: as for :meth:`scale_force` (the risk is always computed, where the card
+                has an error score for several sources: :meth:`sources_risk_unavailable`).
 
         Raises:
             InputError: the card has no multi-source calibration, or for another number of sources; bad inputs.
@@ -381,7 +404,9 @@ class ScalingModel:
             half = interval.half_width(features, cov) * abs(self._inv_exp)
         except ValueError as exc:
             raise InputError(f"{self.name}: {exc}") from None
-        risk, warned = self._scored(score, features, f" from {k} sources", stacklevel=3)
+        risk = warned = None
+        if score is not None:
+            risk, warned = self._scored(score, features, f" from {k} sources", stacklevel=3)
         extrapolated = np.logical_or.reduce([o.extrapolated for o in outs])
         lo, hi = _bounds(force, half)
         return ScaledForce(self.variable, self.unit, force, lo, hi, delta, extrapolated, cov,
@@ -420,7 +445,8 @@ class ScalingModel:
                 if self._row_interval is not None:  # δ1·e^(±h) gives F21·e^(∓h/exponent)
                     lo, hi = _bounds(force, self._row_interval.half_width(features, spread[0]) * self._inv_exp)
                     method = self.interval_method
-                row_risk, warned = self._scored(self.risk.score, features, "", stacklevel=4)
+                if self.risk.score is not None:  # else no error score was learnt (risk_unavailable says why)
+                    row_risk, warned = self._scored(self.risk.score, features, "", stacklevel=4)
         elif outside.any():
             self._warn(g_out, int(outside.sum()), len(outside))
         return ScaledForce(self.variable, self.unit, force, lo, hi, delta, outside, spread[0], method, row_risk,
