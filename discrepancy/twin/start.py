@@ -9,10 +9,11 @@ seed by reset options (``WheelLoaderDigEnv.RESET_OPTIONS``) read from the log, f
 * the start angles of boom and bucket by Newton on the log's first rows (the bucket has not met the pile yet);
 * the pile by a coarse grid over its distance, then its repose angle (:data:`GRID` points within :data:`SPAN`
   times the half-range the env's seed draws): this finds the valley of the misfit;
-* then a joint Levenberg–Marquardt over distance, repose angle and height (iteratively reweighted for Huber's ρ,
-  forward-difference Jacobian). Distance and repose angle are strongly correlated (the bucket meets the slope
-  where ``(x − toe)·tan(repose)`` reaches its edge: a nearer toe with a flatter slope meets it almost alike), so
-  the misfit is a narrow diagonal valley in which a search one quantity at a time stalls several % short.
+* then a joint Levenberg–Marquardt over both angles, distance, repose angle and height (iteratively reweighted
+  for Huber's ρ, central-difference Jacobian). Distance and repose angle are strongly correlated (the bucket
+  meets the slope where ``(x − toe)·tan(repose)`` reaches its edge: a nearer toe with a flatter slope meets it
+  almost alike), so the misfit is a narrow diagonal valley in which a search one quantity at a time stalls several
+  % short.
 
 A pile quantity the log does not see (typically the height: a short dig never reaches the crest) has a zero column
 in the Jacobian; it stays at its nominal value and is reported in :attr:`StartEstimate.unidentified`.
@@ -24,7 +25,12 @@ lag: fitted on the unfiltered twin, the pile moves nearer, and a filter estimate
 comes out too slow (held-out case 19 of seed 3, a 200 Hz log filtered at τ 0.15 s: pile 0.10 boom lengths near,
 τ 0.29 s; misfit 2.8 where the true start with τ 0.15 s gives 0.57). With ``profile_filter`` every replay is
 therefore compared through the first-order sensor filter that fits it best (τ profiled out, a cheap scalar
-search on the replay's output: no further replay), so the start and the filter are estimated jointly.
+search on the replay's output: no further replay), so the start and the filter are estimated jointly. A log whose
+clock runs behind its commands lags alike; with ``fit_offset`` the offset is a parameter of the same fit (its
+Jacobian column read off the same replays).
+
+Everything is fitted on the rows up to the first contact and a share after it (:data:`EARLY_SHARE`); what the log
+leaves uncertain becomes :attr:`StartEstimate.draws`, the starts of the null's runs.
 """
 
 from __future__ import annotations
@@ -90,13 +96,14 @@ SEEN = 1.0
 #: the dig runs through events (a cylinder stalling at relief, the wheels slipping) whose timing a pile a fraction
 #: of a percent of a boom length nearer moves by whole steps: over the whole log the misfit is a field of needles
 #: (held-out case 19 of seed 3: minima at 0.47 and 0.59 boom lengths, the truth 0.515 a needle 0.005 wide), while
-#: over the first fifth after contact it is one smooth valley at 0.505. What the start leaves uncertain later in
-#: the dig is the null's to cover (:attr:`StartEstimate.spread`). Fitting on these rows also makes each replay
-#: several times shorter.
+#: over the first fifth after contact it is one smooth valley at 0.505; a third of the rows after contact (chosen on
+#: the field-log nulls of benchmark seeds 0–2, against a fifth and a half) also sees the repose angle better. What
+#: the start leaves uncertain later in the dig is the null's to cover (:attr:`StartEstimate.draws`). Fitting on
+#: these rows also makes each replay several times shorter.
 EARLY_SHARE = 0.35
 #: The null's runs of a log without seed start from draws around the estimate (:attr:`StartEstimate.draws`): the
-#: pile from the estimate's Laplace covariance (:func:`_covariance`) plus this floor, in half-ranges of the env's
-#: own draw (tuned on the field-log nulls of benchmark seeds 0–2) ...
+#: start from the estimate's Laplace covariance (:func:`_covariance`) plus this floor, in half-ranges of the env's
+#: own draw (the valley floor is bumpy on about this scale, see :data:`FD_STEP`).
 START_SPREAD = 0.2
 DRAWS = 8  # draws kept (the null runs cycle through them)
 DRAW_SEED = 47  # the draws are seeded: the same log gives the same null
