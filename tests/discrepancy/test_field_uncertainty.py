@@ -4,6 +4,7 @@ jointly with the start, the start's draws, the commands' switching times of a re
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -74,17 +75,25 @@ STEPS = 50
 
 
 @pytest.fixture(scope="module")
-def filtered_log() -> tuple[TwinSpec, EpisodeData]:
+def truth() -> tuple[TwinSpec, EpisodeData]:
+    """The nominal twin a user would give, and the first :data:`STEPS` rows of a dig on :data:`TRUTH`'s pile."""
     twin = TwinSpec(make_loader("er12"), make_soil("sand"), {}, 0)
-    real = dataclasses.replace(twin, env_kwargs={"reset_noise_scale": 0.0, **TRUTH})
-    clean, _ = simulate(real, [], 3)
-    rng = np.random.default_rng(5)
+    clean, _ = simulate(dataclasses.replace(twin, env_kwargs={"reset_noise_scale": 0.0, **TRUTH}), [], 3)
+    return twin, clean.head(STEPS)
+
+
+def _seedless(clean: EpisodeData, sensor: Callable[[np.ndarray], np.ndarray], seed: int) -> EpisodeData:
+    """``clean`` as a log without seed: each channel through ``sensor``, plus white noise of 0.3 % of its spread."""
+    rng = np.random.default_rng(seed)
     spread = signal_spread(clean.signals)
-    signals = {k: first_order_filter(v[:STEPS], DT, TAU) + 0.003 * spread[k] * rng.standard_normal(STEPS)
-               for k, v in clean.signals.items()}
-    ep = EpisodeData(clean.time[:STEPS], clean.commands[:STEPS], signals, clean.phases[:STEPS], None, twin.loader,
-                     twin.soil, {}, "field")
-    return twin, ep
+    signals = {k: sensor(v) + 0.003 * spread[k] * rng.standard_normal(len(v)) for k, v in clean.signals.items()}
+    return dataclasses.replace(clean, signals=signals, seed=None, name="field")
+
+
+@pytest.fixture(scope="module")
+def filtered_log(truth: tuple[TwinSpec, EpisodeData]) -> tuple[TwinSpec, EpisodeData]:
+    twin, clean = truth
+    return twin, _seedless(clean, lambda v: first_order_filter(v, DT, TAU), 5)
 
 
 def test_start_and_sensor_filter_estimated_together(filtered_log: tuple[TwinSpec, EpisodeData]) -> None:
@@ -110,21 +119,16 @@ def test_start_and_sensor_filter_estimated_together(filtered_log: tuple[TwinSpec
 OFFSET = 0.25  # s: the log's signals lag its commands by this much
 
 
-def test_start_and_time_offset_estimated_together(filtered_log: tuple[TwinSpec, EpisodeData]) -> None:
+def test_start_and_time_offset_estimated_together(truth: tuple[TwinSpec, EpisodeData],
+                                                  filtered_log: tuple[TwinSpec, EpisodeData]) -> None:
     """A log whose clock runs behind its commands: fitted alone, the start takes the lag for a pile met later;
     fitted together, the offset comes out and the pile stays where it is."""
-    twin, ep = filtered_log
-    real = dataclasses.replace(twin, env_kwargs={"reset_noise_scale": 0.0, **TRUTH})
-    clean, _ = simulate(real, [], 3)
-    rng = np.random.default_rng(9)
-    spread = signal_spread(clean.signals)
-    signals = {k: delayed(v[:STEPS], DT, OFFSET) + 0.003 * spread[k] * rng.standard_normal(STEPS)
-               for k, v in clean.signals.items()}
-    late = dataclasses.replace(ep, signals=signals)
+    twin, clean = truth
+    late = _seedless(clean, lambda v: delayed(v, DT, OFFSET), 9)
     est = estimate_start(late, SerialRunner(twin), fit_offset=True)
     assert est.offset == pytest.approx(OFFSET, abs=0.03)
     assert dict(est.options)["pile_distance"] == pytest.approx(TRUTH["pile_distance"], rel=0.02)
-    assert estimate_start(ep, SerialRunner(twin), profile_filter=True, fit_offset=True).offset == 0.0
+    assert estimate_start(filtered_log[1], SerialRunner(twin), profile_filter=True, fit_offset=True).offset == 0.0
 
 
 def test_twin_read_at_the_logs_times_is_its_replay_delayed() -> None:
