@@ -142,3 +142,17 @@ def test_twin_read_at_the_logs_times_is_its_replay_delayed() -> None:
         np.testing.assert_allclose(late.signals[k], delayed(plain.signals[k], DT, 0.17), rtol=0, atol=1e-9)
     x = np.linspace(0.0, 3.0, 31)
     np.testing.assert_allclose(delayed(2.0 * x, DT, 0.2)[5:], 2.0 * (x[5:] - 0.2), atol=1e-12)  # a ramp, 0.2 s late
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed, index", [(0, 5), (2, 0)])
+def test_field_log_nulls_stay_clean(seed: int, index: int) -> None:
+    """Benchmark nulls delivered as field logs without seed (a 50 Hz WA475 log through per-channel sensor filters;
+    an ER12 CSV without ``lift_extension``), which named friction or compliance before the start, filter and
+    offset were fitted together and the null drew starts and command timings."""
+    from discrepancy.bench.cases import make_case
+    from discrepancy.bench.run import run_case
+
+    result = run_case(make_case(index, seed))
+    assert not result.get("error"), result.get("error")
+    assert result["named"] == [], result["named"]
