@@ -10,6 +10,8 @@ import numpy as np
 import pytest
 
 from discrepancy import TwinSpec
+from discrepancy.bench.cases import make_case
+from discrepancy.bench.run import run_case
 from discrepancy.bench.synth import simulate
 from discrepancy.data.episode import EpisodeData, signal_spread
 from discrepancy.data.fieldlog import (
@@ -150,9 +152,6 @@ def test_field_log_nulls_stay_clean(seed: int, index: int) -> None:
     """Benchmark nulls delivered as field logs without seed (a 50 Hz WA475 log through per-channel sensor filters;
     an ER12 CSV without ``lift_extension``), which named friction or compliance before the start, filter and
     offset were fitted together and the null drew starts and command timings."""
-    from discrepancy.bench.cases import make_case
-    from discrepancy.bench.run import run_case
-
     result = run_case(make_case(index, seed))
     assert not result.get("error"), result.get("error")
     assert result["named"] == [], result["named"]
