@@ -9,6 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from discrepancy.effects import CATALOGUE, JOINTS, Effect, EffectSpec, Scales, pi_unit
+from discrepancy.twin.env import MAX_DELAY
 
 
 @dataclass(frozen=True)
@@ -33,6 +34,8 @@ class Candidate:
             lo, hi = p.bounds
             if self.name in ("soil_cohesion", "soil_adhesion"):  # the soil's own term cannot go below zero
                 lo = -getattr(scales, self.name.removeprefix("soil_")) / pi_unit(self.name, p.name, None, scales)
+            if self.name == "actuator_delay":  # no longer than the twin's valves can hold (a large machine's
+                hi = min(hi, MAX_DELAY / pi_unit(self.name, p.name, self.target, scales))  # 1.2 √(L/g) is more)
             rows.append((np.log(max(lo, 1e-12)), np.log(hi)) if p.log else (lo, hi))
         return np.array(rows, dtype=float)
 
