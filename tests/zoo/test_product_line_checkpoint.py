@@ -18,7 +18,14 @@ import zoo
 from scaling.data.delta_dataset import DeltaDataset
 from scaling.data.product_line import PI1_LINKAGE, match_rows, nearest_machine, nearest_machines
 from scaling.evaluation.conformal import ErrorScore, RowInterval, RowRisk, group_weighted_quantile
-from scaling.evaluation.generalisation import LeaveMachineOut, finite_groups, judged_rows, row_kinds, target_rows
+from scaling.evaluation.generalisation import (
+    LeaveMachineOut,
+    Split,
+    finite_groups,
+    judged_rows,
+    row_kinds,
+    target_rows,
+)
 from scaling.models import load_model
 from scaling.models.fitted import model_groups
 from zoo.product_line import NAME, ProductLineBuild, build_product_line
@@ -282,6 +289,17 @@ def _judged_target(frame: pd.DataFrame, machine: str, groups: tuple) -> pd.DataF
     return tgt[finite_groups(tgt, (*groups, PI1_LINKAGE))].reset_index(drop=True)
 
 
+def _matched_sources(frame: pd.DataFrame, split: Split, machine: str, tgt: pd.DataFrame
+                     ) -> tuple[list[str], list[pd.DataFrame]]:
+    """The three calibration machines nearest ``machine`` and, from each, the rows matched to ``tgt``."""
+    names = nearest_machines(split.specs[machine], {m: split.specs[m] for m in split.train}, 3)
+    sources = []
+    for name in names:
+        rows = frame[frame["machine"] == name].reset_index(drop=True)
+        sources.append(rows.iloc[match_rows(rows, tgt)].reset_index(drop=True))
+    return names, sources
+
+
 def test_three_sources_serve_the_judged_prediction_and_coverage(built: tuple[Path, Path, ProductLineBuild]) -> None:
     """From the three training machines nearest in design, ``scale_force_sources`` gives the geometric mean of the
     three single-source forces, and on the held-out machine its interval covers exactly the share of rows the
@@ -296,12 +314,8 @@ def test_three_sources_serve_the_judged_prediction_and_coverage(built: tuple[Pat
     groups = model_groups(served.model)[1]
     for machine in split.test:
         tgt = _judged_target(frame, machine, groups)
-        names = nearest_machines(split.specs[machine], {m: split.specs[m] for m in split.train}, 3)
+        names, sources = _matched_sources(frame, split, machine, tgt)
         assert card["metrics"]["multi_source"]["held_out_machines"][machine]["source"] == "+".join(names)
-        sources = []
-        for name in names:
-            src = frame[frame["machine"] == name].reset_index(drop=True)
-            sources.append(src.iloc[match_rows(src, tgt)].reset_index(drop=True))
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", zoo.ExtrapolationWarning)
             out = served.scale_force_sources(sources, tgt.drop(columns=["F21"]))
@@ -406,12 +420,7 @@ def test_a_checkpoint_with_an_error_score_serves_it(built: tuple[Path, Path, Pro
     np.testing.assert_array_equal(out.warned, score.above(out.risk))
     assert any(f"{int(out.warned.sum())} of {len(tgt)} target rows are likely" in str(w.message)
                for w in caught) == bool(out.warned.any())
-    split = cfg.layout.split()
-    names = nearest_machines(split.specs["pl1-0"], {m: split.specs[m] for m in split.train}, 3)
-    sources = []
-    for name in names:
-        rows = frame[frame["machine"] == name].reset_index(drop=True)
-        sources.append(rows.iloc[match_rows(rows, tgt)].reset_index(drop=True))
+    _, sources = _matched_sources(frame, cfg.layout.split(), "pl1-0", tgt)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", zoo.ExtrapolationWarning)
         out3 = scored.scale_force_sources(sources, tgt)
