@@ -104,7 +104,13 @@ def test_full_catalogue(name: str, scales, planted, twin) -> None:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize(("name", "size"), [("soft_tilt_servo", 0.03), ("boom_spring", 0.15)])
+@pytest.mark.parametrize(("name", "size"), [
+    ("soft_tilt_servo", 0.03),
+    pytest.param("boom_spring", 0.15, marks=pytest.mark.xfail(
+        strict=True, reason="known (issue 14), failing since at least 6aab765: Coulomb friction removes more than "
+        "CREDIBLE (85 %) of a 0.15 boom spring's excess on this seed-11 ER12 cycle and is named before "
+        "`unexplained`, where only `unexplained` should be")),
+])
 def test_out_of_catalogue_is_unexplained(name: str, size: float, twin) -> None:
     """Physics the catalogue has no entry for is reported as ``unexplained``, not as its closest entry alone."""
     real = record(twin, [], 0.01, twin.seed, ooc_physics(name, size, twin))
