@@ -3,9 +3,10 @@ time offset between the log's signals and its commands.
 
 :func:`align` takes the analysed episode and the nominal twin and returns both as they should be compared, plus
 an :class:`Alignment` saying what was estimated (reported in the diagnosis). Each estimate is applied only when it
-is worth it (``estimate_offset``'s and ``estimate_sensor_tau``'s own thresholds); an offset is applied only when
-the lift and the tilt circuits agree on it (:data:`OFFSET_AGREEMENT`): a dead time in one actuator, which the
-catalogue names, moves one circuit only.
+is worth it (``estimate_offset``'s and ``estimate_sensor_tau``'s own thresholds; for a log without seed, the
+joint fit's, see ``estimate_start``); an offset found against the twin is applied only when the lift and the tilt
+circuits agree on it (:data:`OFFSET_AGREEMENT`): a dead time in one actuator, which the catalogue names, moves one
+circuit only.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from discrepancy.data.episode import EpisodeData
+from discrepancy.data.episode import EpisodeData, signal_spread
 from discrepancy.data.fieldlog import (
     OffsetEstimate,
     estimate_channel_taus,
@@ -54,12 +55,6 @@ class Alignment:
 
 def _filtered(result: SimResult, dt: float, tau: float) -> dict:
     return {k: first_order_filter(v, dt, tau) for k, v in result.signals.items()} if tau > 0 else result.signals
-
-
-def _spread(signals: dict[str, np.ndarray]) -> dict[str, float]:
-    """Each signal's standard deviation over the whole record (the normaliser of an offset fitted on its first
-    rows, see ``estimate_offset``)."""
-    return {c: float(np.std(v)) for c, v in signals.items() if np.all(np.isfinite(v))}
 
 
 def _offset(ep: EpisodeData, twin: dict, notes: list[str], scale: dict[str, float] | None = None
@@ -100,8 +95,8 @@ def align(ep: EpisodeData, spec: TwinSpec, runner: Runner) -> tuple[EpisodeData,
 
     A log without seed: its start, a common sensor filter and a time offset fitted together on its first rows
     (:func:`estimate_start`); then each channel's own filter and what is left of the offset against the twin from
-    that start, on the same rows; the offsets add up and the log is shifted once. A log with a seed: the filter
-    and the offset against the twin from its seed."""
+    that start, on the same rows; the offsets add up and the twin is read at the log's times
+    (``TwinSpec.time_offset``). A log with a seed: the filter and the offset against the twin from its seed."""
     notes: list[str] = []
     start, total, applied, offset = None, 0.0, False, None
     if ep.seed is None:
@@ -115,7 +110,8 @@ def align(ep: EpisodeData, spec: TwinSpec, runner: Runner) -> tuple[EpisodeData,
         if applied:
             again = runner.with_twin(spec).run_many(ep.commands, [Plan()])[0]
             seen = _filtered(again, ep.dt, start.sensor_tau) if profile else again.signals
-            offset = estimate_offset(*(_head(x, start.rows) for x in (ep.signals, seen)), ep.dt, scale=_spread(seen))
+            offset = estimate_offset(_head(ep.signals, start.rows), _head(seen, start.rows), ep.dt,
+                                     scale=signal_spread(seen))
         assert start is not None
         notes.append(f"the log has no reset seed: start pose and pile estimated from it ({start.replays} replays; "
                      f"misfit {start.misfit_default:.3g} -> {start.misfit:.3g})")
@@ -135,7 +131,7 @@ def align(ep: EpisodeData, spec: TwinSpec, runner: Runner) -> tuple[EpisodeData,
     else:
         tau = estimate_sensor_tau(_head(ep.signals, trusted), _head(nominal.signals, trusted), ep.dt)
     seen = _filtered(nominal, ep.dt, tau)
-    rest, undo = _offset(ep.head(trusted), _head(seen, trusted), notes, _spread(seen))
+    rest, undo = _offset(ep.head(trusted), _head(seen, trusted), notes, signal_spread(seen))
     if undo:
         total, applied, offset = total + rest.offset, True, rest
         spec = dataclasses.replace(spec, time_offset=total)

@@ -175,27 +175,27 @@ class _Fit:
     """The log's motion channels against replays from candidate starts: residual vectors and their misfit, each
     replay through its best-fitting sensor filter when ``profile_filter``."""
 
-    def __init__(self, ep: EpisodeData, runner: Runner, rows: slice, profile_filter: bool = False) -> None:
+    def __init__(self, ep: EpisodeData, runner: Runner, rows: int, profile_filter: bool = False) -> None:
         names = [s for s in MOTION if s in ep.signals and np.all(np.isfinite(ep.signals[s]))] or \
             [s for s in COMPARED if s in ep.signals and np.all(np.isfinite(ep.signals[s]))]
         self.ep, self.runner, self.rows, self.names = ep, runner, rows, names
         self.scale = np.array([max(0.01 * float(np.ptp(ep.signals[s])), 1e-12) for s in names])
-        self.real = np.stack([ep.signals[s][: rows.stop] for s in names])
+        self.real = np.stack([ep.signals[s][:rows] for s in names])
         self.profile_filter = profile_filter
         self.replays = 0
 
     def residuals(self, result: SimResult, shift: float = 0.0) -> _Probe | None:
-        """(twin − log) / scale over :attr:`rows`, flattened, the twin read ``shift`` control steps late (the log
-        lags its commands by that much) and through the best first-order sensor filter when profiled; None when
-        the replay failed."""
+        """(twin − log) / scale over the first :attr:`rows` rows, flattened, the twin read ``shift`` control steps
+        late (the log lags its commands by that much) and through the best first-order sensor filter when profiled;
+        None when the replay failed."""
         if result.error:
             return None
         twin = delayed(np.stack([result.signals[s] for s in self.names]), self.ep.dt, shift * self.ep.dt)
-        twin = twin[:, : self.rows.stop]
+        twin = twin[:, : self.rows]
 
         def z_at(tau: float) -> np.ndarray:
             seen = first_order_filter(twin, self.ep.dt, tau)
-            return np.nan_to_num(((seen - self.real) / self.scale[:, None])[:, self.rows].T, nan=1e3).ravel()
+            return np.nan_to_num(((seen - self.real) / self.scale[:, None]).T, nan=1e3).ravel()
 
         if not self.profile_filter:
             return _Probe(z_at(0.0), result, shift=shift)
@@ -206,7 +206,7 @@ class _Fit:
         """One probe per start (one batch of replays of the log's commands up to the fitted rows' end), each read
         with its offset in ``shifts`` (control steps; default none)."""
         self.replays += len(starts)
-        results = self.runner.run_many(self.ep.commands[: self.rows.stop], [Plan()] * len(starts), starts=starts)
+        results = self.runner.run_many(self.ep.commands[: self.rows], [Plan()] * len(starts), starts=starts)
         return [self.residuals(r, s) for r, s in zip(results, shifts or [0.0] * len(starts), strict=True)]
 
     def best_shift(self, probe: _Probe | None) -> _Probe | None:
@@ -228,25 +228,25 @@ def misfit(z: np.ndarray | _Probe | None) -> float:
     return float(np.mean(huber(z.z if isinstance(z, _Probe) else z)))
 
 
-def estimate_start(ep: EpisodeData, runner: Runner, skip: int = 0, profile_filter: bool = False,
+def estimate_start(ep: EpisodeData, runner: Runner, profile_filter: bool = False,
                    fit_offset: bool = False) -> StartEstimate:
-    """Reset options for the twin of ``runner`` that best replay ``ep`` (see the module), ignoring its first
-    ``skip`` rows (rows a time offset left without a logged value); with ``profile_filter``, jointly with a
-    first-order sensor filter common to the motion channels (:attr:`StartEstimate.sensor_tau`); with
-    ``fit_offset``, jointly with a time offset between the log's signals and its commands
-    (:attr:`StartEstimate.offset`)."""
+    """Reset options for the twin of ``runner`` that best replay ``ep`` (see the module); with
+    ``profile_filter``, jointly with a first-order sensor filter common to the motion channels
+    (:attr:`StartEstimate.sensor_tau`); with ``fit_offset``, jointly with a time offset between the log's signals
+    and its commands (:attr:`StartEstimate.offset`)."""
     twin = runner.twin
     centre = _nominal(dict(twin.env_kwargs), twin.soil.repose_angle)
     current = {k: c for k, (c, _) in centre.items()}
     nominal = runner.run_many(ep.commands, [Plan()], starts=[_start(current)])[0]
-    fit = _Fit(ep, runner, slice(skip, fitted_rows(nominal, len(ep), skip)), profile_filter)
+    fit = _Fit(ep, runner, fitted_rows(nominal, len(ep)), profile_filter)
     fit.replays += 1
-    default = misfit(fit.residuals(nominal))
+    first = fit.residuals(nominal)
+    default = misfit(first)
     angles_seen = len(_head_channels(ep)) >= len(ANGLES)
     if angles_seen:
-        fit.replays += _solve_angles(ep, runner, current, skip)
+        fit.replays += _solve_angles(ep, runner, current)
     z: _Probe | None = None
-    shift = fit.best_shift(fit.residuals(nominal)).shift if fit_offset else 0.0  # type: ignore[union-attr]
+    shift = fit.best_shift(first).shift if fit_offset and first is not None else 0.0  # type: ignore[union-attr]
     for name in COARSE if angles_seen else (*ANGLES, *COARSE):
         c, half = centre[name]
         grid = np.linspace(c - SPAN * half, c + SPAN * half, GRID)
@@ -266,7 +266,17 @@ def estimate_start(ep: EpisodeData, runner: Runner, skip: int = 0, profile_filte
         if abs(z.shift) < MIN_OFFSET_STEPS or misfit(z) > (1.0 - MIN_OFFSET_GAIN) * misfit(unshifted):
             offset = 0.0
     return StartEstimate(_start(current), misfit(z), float(default), fit.replays, unidentified,
-                         z.tau if z is not None and z.filtered else 0.0, int(fit.rows.stop), draws, offset)
+                         z.tau if z is not None and z.filtered else 0.0, fit.rows, draws, offset)
+
+
+def _units(centre: dict[str, tuple[float, float]], values: dict[str, float]) -> np.ndarray:
+    """:data:`FITTED` of ``values`` in half-range units about their nominal values."""
+    return np.array([(values[k] - centre[k][0]) / centre[k][1] for k in FITTED])
+
+
+def _from_units(centre: dict[str, tuple[float, float]], u: np.ndarray) -> dict[str, float]:
+    """The :data:`FITTED` quantities at ``u`` (half-range units; their first ``len(FITTED)`` entries)."""
+    return {k: centre[k][0] + centre[k][1] * float(v) for k, v in zip(FITTED, u[: len(FITTED)], strict=True)}
 
 
 def _bounds(centre: dict[str, tuple[float, float]]) -> tuple[np.ndarray, np.ndarray]:
@@ -286,14 +296,12 @@ def _draws(centre: dict[str, tuple[float, float]], current: dict[str, float], un
     :data:`START_SPREAD` half-ranges (:data:`SPAN` for a quantity the log does not see); seeded, within
     :func:`_bounds`."""
     rng = np.random.default_rng(DRAW_SEED)
-    half = np.array([centre[k][1] for k in FITTED])
-    mid = np.array([centre[k][0] for k in FITTED])
-    u = np.array([(current[k] - centre[k][0]) / centre[k][1] for k in FITTED])
+    u = _units(centre, current)
     sd = np.array([SPAN if k in unseen else START_SPREAD for k in FITTED])
     out = []
     for _ in range(DRAWS):
         drawn = np.clip(u + sd * rng.standard_normal(len(FITTED)), *_bounds(centre))
-        out.append(_start({**current, **dict(zip(FITTED, (mid + half * drawn).tolist(), strict=True))}))
+        out.append(_start({**current, **_from_units(centre, drawn)}))
     return tuple(out)
 
 
@@ -304,15 +312,13 @@ def _levenberg_marquardt(fit: _Fit, centre: dict[str, tuple[float, float]], curr
     too (control steps, within ±:data:`MAX_OFFSET`; its Jacobian column read off the same replays); IRLS weights
     for Huber's ρ. Returns the probe reached and the quantities the log does not see (:data:`SEEN`)."""
     n = len(FITTED)
-    half = np.array([centre[k][1] for k in FITTED])
-    mid = np.array([centre[k][0] for k in FITTED])
     lo, hi = _bounds(centre)
     if fit_offset:
         m = MAX_OFFSET / fit.ep.dt
         lo, hi = np.append(lo, -m), np.append(hi, m)
 
     def start_at(v: np.ndarray) -> Start:
-        return _start({**current, **dict(zip(FITTED, (mid + half * v[:n]).tolist(), strict=True))})
+        return _start({**current, **_from_units(centre, v)})
 
     def shift_of(v: np.ndarray) -> float:
         return float(v[n]) if fit_offset else 0.0
@@ -330,7 +336,7 @@ def _levenberg_marquardt(fit: _Fit, centre: dict[str, tuple[float, float]], curr
             cols.append((late.z - early.z) / (2 * OFFSET_STEP))  # type: ignore[union-attr]
         return np.stack(cols, axis=1)
 
-    u = np.array([(current[k] - centre[k][0]) / centre[k][1] for k in FITTED])
+    u = _units(centre, current)
     if fit_offset:
         u = np.append(u, probe.shift if probe is not None else 0.0)
     best, lam, seen = misfit(probe), LAMBDA0, np.zeros(len(u), dtype=bool)
@@ -366,11 +372,11 @@ def _levenberg_marquardt(fit: _Fit, centre: dict[str, tuple[float, float]], curr
         u, probe, best, lam, jac = trials[k], results[k], costs[k], lam * DAMPING[k], None
         if done:
             break
-    current.update(zip(FITTED, (mid + half * u[:n]).tolist(), strict=True))
+    current.update(_from_units(centre, u))
     return probe, tuple(k for k, s in zip(FITTED, seen[:n], strict=True) if not s)
 
 
-def fitted_rows(nominal: SimResult, rows: int, skip: int = 0) -> int:
+def fitted_rows(nominal: SimResult, rows: int) -> int:
     """End of the rows the start is fitted on: the first contact with the pile in the nominal replay (the soil
     resistance ``R_x`` departs from its start by :data:`CONTACT` of its range), then :data:`EARLY_SHARE` of the
     rows after it; all rows when the replay failed or never meets the pile."""
@@ -381,18 +387,18 @@ def fitted_rows(nominal: SimResult, rows: int, skip: int = 0) -> int:
     if len(moved) == 0:
         return rows
     contact = int(moved[0])
-    return min(rows, max(skip + HEAD + 1, contact + int(np.ceil(EARLY_SHARE * (rows - contact)))))
+    return min(rows, max(HEAD + 1, contact + int(np.ceil(EARLY_SHARE * (rows - contact)))))
 
 
-def _solve_angles(ep: EpisodeData, runner: Runner, current: dict[str, float], skip: int = 0) -> int:
+def _solve_angles(ep: EpisodeData, runner: Runner, current: dict[str, float]) -> int:
     """Start angles of boom and bucket (rad) from the log's first rows: Gauss–Newton on the first :data:`HEAD` control
     steps of the :data:`HEAD_CHANNELS` it has, each relative to its spread (cheap replays; the pile is not met yet),
     finite-difference Jacobian; updates ``current``, returns replays."""
-    rows = slice(skip, skip + HEAD)
+    rows = slice(0, HEAD)
     names = _head_channels(ep)
     scale = np.array([max(float(np.ptp(ep.signals[c])), 1e-12) for c in names])[:, None]
     target = (np.array([ep.signals[c][rows] for c in names]) / scale).ravel()
-    head = ep.commands[:skip + HEAD]
+    head = ep.commands[:HEAD]
     replays = 0
     for _ in range(NEWTON):
         x = np.array([current["boom_angle"], current["bucket_angle"]])
