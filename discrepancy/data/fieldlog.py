@@ -18,11 +18,18 @@ the command applied over the interval ``(t_k - dt, t_k]`` and the signals read a
   to the diagnosis.
   (``scipy.signal.resample_poly`` would be the same linear-phase FIR for an integer ratio on uniform timestamps;
   one path for every ratio and for jittered timestamps is used instead.)
-* commands: the twin holds each command for one control step (zero-order hold), so the command of interval ``k``
-  is the time-weighted mean of the logged command over ``(t_k - dt, t_k]``, each logged value taken as held over
-  the logger's interval that ends at its timestamp (the recordings' own convention). For a command that changes
-  on the control grid this is the command itself; for one that changes in between, it is the command of equal
-  integral (equal cylinder travel for a flow-proportional valve).
+* commands: the twin holds each command for one control step (zero-order hold), over ``(t_k - dt, t_k]``. A
+  logger reads the command at its sampling instant, so every sample taken inside that interval reads the command
+  of step ``k`` when the commands switch on the control grid: the command of interval ``k`` is the mean of the
+  commands logged at times in ``(t_k - dt, t_k]``, which is then the command itself, whatever the logger's phase
+  against the grid. For a command that changes in between, the mean of the instantaneous samples is the command
+  of (nearly) equal integral (equal cylinder travel for a flow-proportional valve), known to within half a
+  logger step of each change; the samples of one interval then disagree, and :attr:`InputReport.command_timing`
+  says how far a change may be off (0 when every interval's samples agree). An interval without a sample (a
+  jittered logger just above the control rate) takes the time-weighted mean of the logged commands, each held
+  over the logger's interval ending at its timestamp. (Taking every sample as held over the logger's interval
+  put a share of up to ``h / dt`` of each change into the wrong step: a 50 Hz log of a 0.038 s control step gave
+  commands 0.06 RMS off, and a dig replayed from them with the true start left residuals 20 times its noise.)
 * phases (strings): the logged phase nearest to ``t_k``.
 * the control grid starts at the log's first timestamp: that sample is the end of the first control step, as the
   first row of our recordings and of a log at the control step is (the reset state is not a row), and rows are
@@ -92,6 +99,12 @@ TAU_MAX = 1.0
 #: twin's sharp steps and always gains a little against a noisy log or a physical discrepancy (friction smooths
 #: the motion too), while a real sensor filter explains nearly all of the residual it causes.
 MIN_TAU_GAIN = 0.5
+#: A timestamp within this fraction of a control step after a grid time still belongs to the step ending there
+#: (floating-point rounding of ``t_0 + k h`` against ``t_0 + k dt``; a logger's real jitter is far larger).
+GRID_TOLERANCE = 1e-6
+#: Logged commands within one control interval agree when they differ by at most this (normalised command units):
+#: a logged value read back from a file keeps ten significant digits or more.
+COMMAND_AGREEMENT = 1e-6
 
 
 @dataclass(frozen=True)
@@ -109,6 +122,9 @@ class InputReport:
         time_offset: offset between the log's signals and the twin, s (positive: the log lags), once estimated.
         sensor_tau: a first-order sensor time constant, s, once declared or estimated.
         warnings: anything else a reader of the report should know.
+        command_timing: how far a command change may lie from where the prepared commands put it, in control
+            steps (0: not resampled, or every control interval's logged commands agree, so the commands switch on
+            the twin's grid and are exact; see :func:`resample_commands`).
     """
 
     original_rate_hz: float
@@ -120,6 +136,7 @@ class InputReport:
     time_offset: float | None = None
     sensor_tau: float | None = None
     warnings: tuple[str, ...] = ()
+    command_timing: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready: numbers as floats, gaps as ``{"channel", "t_start", "t_end"}`` objects."""
@@ -133,6 +150,7 @@ class InputReport:
             "time_offset": None if self.time_offset is None else float(self.time_offset),
             "sensor_tau": None if self.sensor_tau is None else float(self.sensor_tau),
             "warnings": list(self.warnings),
+            "command_timing": float(self.command_timing),
         }
 
 
@@ -241,9 +259,10 @@ def prepare_log(time: np.ndarray, commands: np.ndarray, signals: Mapping[str, np
     if np.ptp(steps) > UNIFORM_TOLERANCE * h:
         warnings.append(f"timestamps jittered (steps {steps.min():.4g}..{steps.max():.4g} s): interpolated onto a "
                         f"uniform {h:.4g} s grid before filtering")
-    report = InputReport(1.0 / h, dt, True, description, tuple(gaps), missing, warnings=tuple(warnings))
-    return PreparedLog(grid, resample_commands(time, cmds, grid, dt), out, resample_phases(time, phases, grid),
-                       report)
+    on_grid, timing = resample_commands(time, cmds, grid, dt)
+    report = InputReport(1.0 / h, dt, True, description, tuple(gaps), missing, warnings=tuple(warnings),
+                         command_timing=timing)
+    return PreparedLog(grid, on_grid, out, resample_phases(time, phases, grid), report)
 
 
 def _resampled(time: np.ndarray, x: np.ndarray, grid: np.ndarray, dt: float, taps: np.ndarray, channel: str,
@@ -279,7 +298,7 @@ def antialias_filter(h: float, dt: float) -> tuple[np.ndarray, str]:
     taps = signal.firwin(numtaps, 0.5 * (f_pass + f_stop), window=("kaiser", beta), fs=fs)
     text = (f"zero-phase Kaiser FIR low-pass ({numtaps} taps at {fs:.4g} Hz; pass to {f_pass:.3g} Hz, "
             f"-{STOP_DB:.0f} dB from {f_stop:.3g} Hz), signals read at the end of each {dt:.4g} s control step; "
-            "commands: time-weighted mean over each control interval; phases: nearest sample")
+            "commands: mean of those logged within each control interval; phases: nearest sample")
     return taps, text
 
 
@@ -330,12 +349,40 @@ def end_level(x: np.ndarray, span: int) -> float:
     return float(np.polynomial.polynomial.polyfit(k, x[:n], END_DEGREE)[0])
 
 
-def resample_commands(time: np.ndarray, commands: np.ndarray, grid: np.ndarray, dt: float) -> np.ndarray:
-    """Command of each control interval ``(t_k - dt, t_k]`` (s): the time-weighted mean of the logged commands,
-    each held over the logger's interval ending at its timestamp; the first logged command is held back over
-    ``(grid[0] - dt, time[0]]`` (the log starts at the end of the first control step, see the module)."""
+def resample_commands(time: np.ndarray, commands: np.ndarray, grid: np.ndarray, dt: float
+                      ) -> tuple[np.ndarray, float]:
+    """Commands of the control intervals ``(t_k - dt, t_k]`` (``t_k`` in ``grid``, s) from a faster log, and how
+    uncertain their switching times are.
+
+    Returns:
+        (steps, inputs): the mean of the commands logged at times within each interval (a logger reads the command
+        at its sampling instant; see the module); an interval without a sample takes the time-weighted mean of the
+        logged commands, each held over the logger's interval ending at its timestamp (the first held back over
+        ``(grid[0] - dt, time[0]]``); and the timing uncertainty in control steps: 0 when the samples within every
+        interval agree (the commands switch on the grid), else half a logger step (:func:`command_timing`).
+    """
     time = np.asarray(time, dtype=np.float64)
     cmds = np.asarray(commands, dtype=np.float64).reshape(len(time), -1)
+    held = _held_means(time, cmds, grid, dt)
+    # interval of each timestamp: k with t_k - dt < t <= t_k (a sample on a grid time ends that step's interval)
+    k = np.ceil((time - grid[0]) / dt - GRID_TOLERANCE).astype(int)
+    inside = (k >= 0) & (k < len(grid))
+    k, x = k[inside], cmds[inside]
+    counts = np.bincount(k, minlength=len(grid))
+    sums = np.stack([np.bincount(k, weights=x[:, i], minlength=len(grid)) for i in range(x.shape[1])], axis=1)
+    out = np.where(counts[:, None] > 0, sums / np.maximum(counts, 1)[:, None], held)
+    spread = np.zeros((len(grid), x.shape[1]))
+    for i in range(x.shape[1]):
+        np.maximum.at(spread[:, i], k, np.abs(x[:, i] - out[k, i]))
+    off_grid = bool(np.any(spread > COMMAND_AGREEMENT))
+    h = float(np.median(np.diff(time))) if len(time) > 1 else dt
+    timing = min(0.5, 0.5 * h / dt) if off_grid else 0.0
+    return np.clip(out, -1.0, 1.0), timing  # clip: rounding only, the inputs are within [-1, 1]
+
+
+def _held_means(time: np.ndarray, cmds: np.ndarray, grid: np.ndarray, dt: float) -> np.ndarray:
+    """Time-weighted mean of the logged commands over each control interval, each held over the logger's interval
+    ending at its timestamp; the first logged command held back over ``(grid[0] - dt, time[0]]``."""
     # running integral of the held command, exact (piecewise linear) for a piecewise-constant command; a point
     # one control step before the log's start carries the first command held back over that step
     before = min(time[0], grid[0]) - dt
@@ -344,17 +391,18 @@ def resample_commands(time: np.ndarray, commands: np.ndarray, grid: np.ndarray, 
                           np.cumsum(cmds[1:] * np.diff(time)[:, None], axis=0)))
     at = np.stack([np.interp(np.concatenate(([grid[0] - dt], grid)), knots, integral[:, i])
                    for i in range(cmds.shape[1])], axis=1)
-    return np.clip(np.diff(at, axis=0) / dt, -1.0, 1.0)  # clip: rounding only, the inputs are within [-1, 1]
+    return np.diff(at, axis=0) / dt
 
 
 def command_timing(report: InputReport | None) -> float:
-    """How uncertain the timing of a prepared log's commands is, in control steps: a logger samples a command
-    every ``h`` s, so a change between two samples happened somewhere in that interval and the control step's mean
-    command (:func:`resample_commands`) is known only to within ``h / 2`` of its switching time. 0 for a log taken
-    as it is (its commands are the twin's own)."""
-    if report is None or not report.resampled or not report.control_dt or report.original_rate_hz <= 0:
+    """How uncertain the timing of a prepared log's commands is, in control steps
+    (:attr:`InputReport.command_timing`): a logger samples a command every ``h`` s, so a change between two
+    samples happened somewhere in that interval and the control step's mean command (:func:`resample_commands`)
+    is known only to within ``h / 2`` of its switching time. 0 for a log taken as it is (its commands are the
+    twin's own) and for one whose commands switch on the control grid."""
+    if report is None or not report.resampled:
         return 0.0
-    return min(0.5, 0.5 / (report.original_rate_hz * report.control_dt))
+    return float(report.command_timing)
 
 
 def moved_commands(commands: np.ndarray, shift: np.ndarray) -> np.ndarray:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import inspect
 import json
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -165,8 +166,16 @@ class Simulator:
     def run(self, commands: np.ndarray, plan: Plan | None = None, two_routes: bool | None = None,
             start: tuple[tuple[str, float], ...] | None = None) -> SimResult:
         """Replay ``commands`` (steps, 3) with ``plan`` from the twin's seed and start (``start`` overrides the
-        twin's); signals after sensor models, the twin's sensor filter and its time offset."""
+        twin's); signals after sensor models, the twin's sensor filter and its time offset.
+
+        A log whose signals lead its commands (``time_offset`` < 0) ends with rows read after its last command:
+        the replay runs on with the last command held over that span (a dig log ends in a steady motion), rather
+        than reading the twin's last sample as if the machine had stopped there."""
         plan = plan or Plan()
+        n = len(commands)
+        lead = math.ceil(-self.twin.time_offset / self.control_dt - 1e-9) if self.twin.time_offset < 0 and n else 0
+        if lead:
+            commands = np.concatenate((commands, np.repeat(np.asarray(commands)[-1:], lead, axis=0)))
         env = self.env(plan.structure, two_routes)
         env.set_physics(plan.physics)
         options = dict(self.twin.start if start is None else start)
@@ -182,21 +191,26 @@ class Simulator:
                 break
             rows.append(info["signals"])
             phases.append(info["phase"])
-        n = len(commands)
         names = [k for k in (*COMPARED, *ROUTE2) if rows and k in rows[0]]
-        signals = {k: _padded([r[k] for r in rows], n) for k in names}
-        time = env.dt * np.arange(1, n + 1)
+        # a replay that diverged only in the steps after the log's end holds its last sample over them
+        hold = len(rows) >= n
+        signals = {k: _padded([r[k] for r in rows], n + lead, hold) for k in names}
+        time = env.dt * np.arange(1, n + lead + 1)
         signals = apply_sensors(signals, time, plan.sensors) if plan.sensors else signals
         if self.twin.sensor_tau > 0.0 or self.twin.sensor_taus:
             own = dict(self.twin.sensor_taus)
             signals = {k: first_order_filter(v, env.dt, own.get(k, self.twin.sensor_tau)) for k, v in signals.items()}
         if self.twin.time_offset:
-            signals = {k: delayed(v, env.dt, self.twin.time_offset) for k, v in signals.items()}
+            signals = {k: delayed(v, env.dt, self.twin.time_offset)[:n] for k, v in signals.items()}
+        phases = phases[:n]
+        if hold:
+            error = None
         return SimResult(signals, np.asarray(phases + ["error"] * (n - len(phases)), dtype=object), error)
 
 
-def _padded(values: list[float], n: int) -> np.ndarray:
-    out = np.full(n, np.nan)
+def _padded(values: list[float], n: int, hold: bool = False) -> np.ndarray:
+    """``values`` padded to ``n`` with NaN (or their last value, ``hold``)."""
+    out = np.full(n, values[-1] if hold and values else np.nan)
     out[: len(values)] = values
     return out
 

@@ -16,6 +16,7 @@ from discrepancy.bench.synth import simulate
 from discrepancy.data.episode import EpisodeData, signal_spread
 from discrepancy.data.fieldlog import (
     InputReport,
+    _held_means,
     command_timing,
     delayed,
     first_order_filter,
@@ -51,17 +52,50 @@ def test_a_moved_command_change_is_what_resampling_a_moved_switch_gives(shift: f
     switch = {0: 5 + shift, 1: 5 + shift, 2: 8.0}  # steps: where each input's change happened
     logged = np.stack([np.where(fine > switch[i] * DT + 1e-9, commands[-1, i], 0.0) for i in range(3)], axis=1)
     grid = np.arange(1, steps + 1) * DT
-    route_resample = resample_commands(fine, logged, grid, DT)
+    route_resample, timing = resample_commands(fine, logged, grid, DT)
     shifts = np.zeros(steps - 1)
     shifts[4] = shift  # the change into row 5
     np.testing.assert_allclose(moved_commands(commands, shifts), route_resample, atol=1e-9)
+    # a switch inside a step shows as samples of one interval that disagree: known to half a logger step
+    assert timing == (pytest.approx(0.5 * h / DT) if shift else 0.0)
 
 
-def test_command_timing_follows_the_logs_rate_and_a_native_log_has_none() -> None:
+@pytest.mark.parametrize(("rate_hz", "phase"), [(50.0, 0.0), (50.0, 0.37), (200.0, 0.81), (26.9, 0.5)])
+def test_commands_switching_on_the_control_grid_come_back_exactly_at_any_logger_phase(rate_hz: float,
+                                                                                      phase: float) -> None:
+    """A logger reads the command at its sampling instants: at a rate not commensurate with the control step
+    (0.0378 s, the miniature's) and at any phase against it, the commands of a controller that switches on the
+    control grid come back exactly, and the log says their timing is exact. Holding each sample back over the
+    logger's step put up to h/dt of a change into the wrong step (the previous rule; checked to be off here)."""
+    dt, steps = 0.0378, 40
+    rng = np.random.default_rng(int(rate_hz * 10 + phase * 100))
+    commands = np.clip(np.cumsum(rng.normal(0.0, 0.3, (steps, 3)), axis=0), -1.0, 1.0)  # a change every step
+    grid = dt * np.arange(1, steps + 1)  # row k ends its interval ((k - 1) dt, k dt]
+    h = 1.0 / rate_hz
+    t = grid[0] + h * (phase + np.arange(int((grid[-1] - grid[0]) / h)))  # the logger's clock, its own phase
+    t = np.concatenate(([grid[0]], t[t > grid[0] + 1e-9]))  # its first sample ends the first control step
+    logged = commands[np.ceil(t / dt - 1e-6).astype(int) - 1]  # the command in force at each sampling instant
+    back, timing = resample_commands(t, logged, grid[grid <= t[-1] + 1e-12], dt)
+    np.testing.assert_allclose(back, commands[:len(back)], rtol=0, atol=1e-12)
+    assert timing == 0.0
+    assert np.max(np.abs(_held_means(t, logged, grid[:len(back)], dt) - commands[:len(back)])) > 0.05
+
+
+def test_an_interval_without_a_sample_takes_the_held_mean() -> None:
+    """A jittered logger just above the control rate can leave a control interval without a sample: that row
+    takes the time-weighted mean of the samples held over their logger steps (what the interval saw)."""
+    t = np.array([0.1, 0.19, 0.31, 0.39, 0.5])  # nothing in (0.2, 0.3]
+    logged = np.array([[0.0], [0.5], [1.0], [1.0], [-1.0]])
+    grid = np.array([0.1, 0.2, 0.3, 0.4, 0.5])
+    back, _ = resample_commands(t, logged, grid, DT)
+    np.testing.assert_allclose(back[:, 0], [0.0, 0.5, 1.0, 1.0, -1.0], atol=1e-12)
+
+
+def test_command_timing_is_the_logs_and_a_native_log_has_none() -> None:
     assert command_timing(None) == 0.0
-    assert command_timing(InputReport(10.0, DT, resampled=False)) == 0.0
-    assert command_timing(InputReport(50.0, DT, resampled=True)) == pytest.approx(0.1)
-    assert command_timing(InputReport(1000.0, DT, resampled=True)) == pytest.approx(0.005)
+    assert command_timing(InputReport(10.0, DT, resampled=False, command_timing=0.3)) == 0.0
+    assert command_timing(InputReport(50.0, DT, resampled=True)) == 0.0  # switching on the grid: exact
+    assert command_timing(InputReport(50.0, DT, resampled=True, command_timing=0.1)) == pytest.approx(0.1)
     rng = np.random.default_rng(0)
     cmds = np.repeat(np.array([[0.0, 0.2, -1.0], [1.0, 0.2, -1.0], [1.0, -0.6, 0.5]]), 4, axis=0)
     moved = jittered_commands(cmds, 0.1, rng)
@@ -144,6 +178,22 @@ def test_twin_read_at_the_logs_times_is_its_replay_delayed() -> None:
         np.testing.assert_allclose(late.signals[k], delayed(plain.signals[k], DT, 0.17), rtol=0, atol=1e-9)
     x = np.linspace(0.0, 3.0, 31)
     np.testing.assert_allclose(delayed(2.0 * x, DT, 0.2)[5:], 2.0 * (x[5:] - 0.2), atol=1e-12)  # a ramp, 0.2 s late
+
+
+def test_a_log_leading_its_commands_ends_with_the_last_command_held() -> None:
+    """Two routes to the last rows of a log whose signals lead its commands by 0.17 s: the twin read at the
+    log's times runs on with the last command held for the two steps after the log's end (it does not freeze on
+    its last sample), which is the plain replay of the commands with those two rows appended, read early."""
+    twin = TwinSpec(make_loader("er12"), make_soil("sand"), {}, 2)
+    commands = simulate(twin, [], 2)[0].commands[:30]
+    longer = np.concatenate((commands, np.repeat(commands[-1:], 2, axis=0)))
+    plain = SerialRunner(twin).run_many(longer, [Plan()])[0]
+    early = SerialRunner(dataclasses.replace(twin, time_offset=-0.17)).run_many(commands, [Plan()])[0]
+    assert early.error is None and len(early.phases) == 30
+    for k in ("F21", "lift_extension", "travel_speed"):
+        np.testing.assert_allclose(early.signals[k], delayed(plain.signals[k], DT, -0.17)[:30], rtol=0, atol=1e-9)
+    frozen = delayed(plain.signals["lift_extension"][:30], DT, -0.17)  # the twin's last sample held instead
+    assert not np.allclose(early.signals["lift_extension"][-2:], frozen[-2:], rtol=0, atol=1e-6)
 
 
 @pytest.mark.slow
