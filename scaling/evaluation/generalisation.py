@@ -67,6 +67,9 @@ PEAK_FRACTION = 0.05
 MISS = 0.10
 #: Training feature rows kept per model in :attr:`GeneralisationResult.training_sample`.
 TRAINING_SAMPLE = 3000
+#: Error lines (relative) at which the served risk's AUROC is also reported: with few rows more than :data:`MISS`
+#: off, the 10 % line alone rests on a handful of rows.
+MISS_LINES = (0.03, 0.05, 0.10)
 
 
 @dataclass
@@ -153,12 +156,14 @@ class LeaveMachineOut:
                      specs={**train_line.specs(), **test_line.specs()}, reference=self.reference)
 
     def load(self, data_dir: str | Path, executor: str | int | Executor | None = 2,
-             progress: bool = True) -> pd.DataFrame:
-        """Rows of every machine with design signals; recordings in ``data_dir``/train and /test (simulated there
-        when missing: resumable, fanned out through ``executor``)."""
+             progress: bool = True, test_dir: str | Path | None = None) -> pd.DataFrame:
+        """Rows of every machine with design signals; recordings in ``data_dir``/train and ``test_dir`` (default
+        ``data_dir``/test; another folder for a test line of another ``test_seed``), simulated there when missing
+        (resumable, fanned out through ``executor``)."""
         frames = []
-        for tag, line in zip(("train", "test"), self.lines(), strict=True):
-            frame = load_or_generate(Path(data_dir) / tag, line.dataset_spec(), executor, progress)
+        dirs = (Path(data_dir) / "train", Path(test_dir) if test_dir is not None else Path(data_dir) / "test")
+        for folder, line in zip(dirs, self.lines(), strict=True):
+            frame = load_or_generate(folder, line.dataset_spec(), executor, progress)
             frames.append(add_design_signals(frame, line.specs()))
         return pd.concat(frames, ignore_index=True)
 
@@ -212,6 +217,10 @@ class GeneralisationResult:
     training_sample: dict[str, np.ndarray] = field(default_factory=dict)
     row_risk: dict[str, RowRisk] = field(default_factory=dict)
     row_interval: dict[str, RowInterval] = field(default_factory=dict)
+    #: per model, every calibration row: ``machine``, ``residual`` (ln δ1 actual − predicted), ``error`` (relative
+    #: F21 error) and the served features (:attr:`RowRisk.FEATURES <scaling.evaluation.conformal.RowRisk.FEATURES>`
+    #: as ``served_0``…); what the intervals are tuned on (leave-machine-out over the calibration machines)
+    calibration_rows: dict[str, pd.DataFrame] = field(default_factory=dict)
 
     def frame(self) -> pd.DataFrame:
         return pd.DataFrame([r.__dict__ for r in self.rows])
@@ -367,6 +376,7 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
     error_scores: dict[str, ErrorScore] = {}
     row_risks: dict[str, RowRisk] = {}
     row_intervals: dict[str, RowInterval] = {}
+    calibration_rows: dict[str, pd.DataFrame] = {}
     for name in models:
         cal = [predict(name, m) for m in split.calibration]
         grp = np.concatenate([np.full(len(c.err), m) for c, m in zip(cal, split.calibration, strict=True)])
@@ -384,13 +394,19 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
             # the served interval needs only the novelty; the served error score may be missing (RowRisk.score None)
             cal_g, cal_log_pred = np.concatenate([c.g for c in cal]), np.concatenate([c.log_pred for c in cal])
             cal_load = np.concatenate([c.tilt_load for c in cal])
+            cal_spread = np.concatenate([c.scale for c in cal])  # an ensemble's σ of ln δ1; ones for a point model
             risk = row_risks[name] = RowRisk.fit(training_sample[name], cal_g, cal_log_pred, features[:, -1],
                                                  cal_load, np.concatenate([c.err for c in cal]), grp, miss=MISS,
-                                                 seed=seed)
+                                                 seed=seed, spread=cal_spread)
             if risk.score is None:
                 say(f"{name}: no served error score ({risk.unavailable})")
-            row_intervals[name] = RowInterval.fit(RowRisk.features(risk.novelty, cal_g, cal_log_pred,
-                                                                   features[:, -1], cal_load), residual, grp)
+            served_cal = RowRisk.features(risk.novelty, cal_g, cal_log_pred, features[:, -1], cal_load, cal_spread)
+            row_intervals[name] = RowInterval.fit(served_cal, residual, grp)
+            calibration_rows[name] = pd.DataFrame({"machine": grp, "residual": residual,
+                                                   "error": np.concatenate([c.err for c in cal]),
+                                                   "ln_spread": features[:, 0], "ln_design_distance": features[:, 3],
+                                                   **{f"served_{k}": served_cal[:, k]
+                                                      for k in range(served_cal.shape[1])}})
 
     auroc_rows: dict[str, tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray], list[np.ndarray]]] = {}
     warn_share: dict[str, dict[str, float]] = {}
@@ -409,7 +425,7 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
             served_features = None  # what a served checkpoint knows of each row: one novelty query per row
             if name in row_risks and p.g is not None:
                 served_features = RowRisk.features(row_risks[name].novelty, p.g, p.log_pred, p.features[:, -1],
-                                                   p.tilt_load)
+                                                   p.tilt_load, p.scale)
                 half = row_intervals[name].half_width(served_features, 0.9)
                 inside_served = (np.abs(p.pairs.log_delta - p.log_pred) <= half).astype(float)
             results.append(_summarise(m, name, "+".join(sources(name, m)), p.err, p.kind, p.pred, p.f21, inside,
@@ -426,7 +442,7 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
             if served_features is not None and served_score is not None:
                 served_risk = served_score.score(served_features)
                 served.setdefault(name, ([], []))[0].append(served_risk)
-                served[name][1].append(p.err > MISS)
+                served[name][1].append(p.err)
                 warned = served_score.above(served_risk)
                 served_warn_share.setdefault(name, {})[m] = float(np.mean(warned))
                 fine = p.err <= MISS
@@ -442,7 +458,9 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
         "threshold": extrap.threshold_, "machine_score": {m: machine_score[m] for m in split.test},
         "warned": {m: bool(machine_score[m] > extrap.threshold_) for m in split.test},
         "auroc_design_distance": {}, "auroc_ensemble_spread": {}, "auroc_error_score": {}, "warn_share": warn_share,
-        "auroc_row_risk": {name: auroc(np.concatenate(r), np.concatenate(y)) for name, (r, y) in served.items()},
+        "auroc_row_risk": {name: auroc(np.concatenate(r), np.concatenate(e) > MISS) for name, (r, e) in served.items()},
+        "auroc_row_risk_at": {name: {str(line): auroc(np.concatenate(r), np.concatenate(e) > line)
+                                     for line in MISS_LINES} for name, (r, e) in served.items()},
         "row_risk_warn_share": served_warn_share, "row_risk_false_alarms": served_false_alarms,
         "row_risk_unavailable": {name: r.unavailable for name, r in row_risks.items() if r.score is None},
         "error_score": {name: {"coef": None if e.coef_ is None else e.coef_.tolist(),
@@ -457,7 +475,7 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
             extrap_out["auroc_ensemble_spread"][name] = auroc(np.concatenate(spread), y)
     fitted = {name: m for name, m in models.items() if m is not None}
     return GeneralisationResult(results, extrap_out, fit_seconds, fitted, calibration, training_range,
-                                training_sample, row_risks, row_intervals)
+                                training_sample, row_risks, row_intervals, calibration_rows)
 
 
 #: Columns of the per-row features of the error score (:class:`scaling.evaluation.conformal.ErrorScore`).
@@ -519,3 +537,82 @@ def _summarise(machine: str, model: str, source: str, err: np.ndarray, kind: np.
                          pct(np.median, hold), peak, share(inside), share(inside_spread),
                          share(inside_served), len(err),
                          float(np.mean(err > MISS)))
+
+
+#: The interval bounds :func:`cross_fit_served` compares (label → :meth:`RowInterval.fit
+#: <scaling.evaluation.conformal.RowInterval.fit>` keywords); the first is the one served.
+INTERVAL_VARIANTS: dict[str, dict[str, Any]] = {
+    "median machine (served)": {},
+    "90 % of machines (before)": {"machine_share": 0.9},
+    "average machine (pooled)": {"machine_share": None},
+    "median machine, floor 1": {"floor": 1.0},
+    "median machine, floor 2": {"floor": 2.0},
+}
+#: The warning thresholds :func:`cross_fit_served` compares (label → (warn_quantile, machine_share) of
+#: :class:`~scaling.evaluation.conformal.ErrorScore`); the first is the one served (:class:`RowRisk`).
+WARN_VARIANTS: dict[str, tuple[float, float]] = {
+    "4 % of every machine's rows (served)": (RowRisk.WARN_QUANTILE, RowRisk.WARN_MACHINE_SHARE),
+    "5 % of the rows of 90 % of machines (before)": (0.95, 0.9),
+    "3 % of the rows of 90 % of machines": (0.97, 0.9),
+}
+
+
+@dataclass
+class CrossFit:
+    """The served interval and error score judged on the calibration machines, each left out in turn: fitted on
+    the others, applied to it (:func:`cross_fit_served`). ``coverage``: machine × interval variant, the share of
+    the machine's rows inside the interval; ``warned``: machine × warning variant, the share of its rows warned on;
+    ``auroc``: miss line → AUROC of the out-of-machine risk for rows more than that off (NaN where no rows are);
+    ``rows_over``: miss line → calibration rows more than that off."""
+
+    coverage: pd.DataFrame
+    warned: pd.DataFrame
+    auroc: dict[float, float]
+    rows_over: dict[float, int]
+
+    def summary(self, low: float = 0.85, high: float = 0.95) -> dict[str, Any]:
+        """Per interval variant: min, max and median coverage and the machines in [low, high]; per warning variant:
+        median and max share warned and the machines above 5 %."""
+        cov = {k: {"min": float(c.min()), "max": float(c.max()), "median": float(c.median()),
+                   "in_band": int(c.between(low, high).sum()), "machines": len(c)} for k, c in self.coverage.items()}
+        warn = {k: {"median": float(w.median()), "max": float(w.max()), "above_5pct": int((w > 0.05).sum())}
+                for k, w in self.warned.items()}
+        return {"coverage": cov, "warned": warn, "auroc": {str(k): v for k, v in self.auroc.items()},
+                "rows_over": {str(k): v for k, v in self.rows_over.items()}}
+
+
+def cross_fit_served(rows: pd.DataFrame, *, coverage: float = 0.9, miss: float = MISS) -> CrossFit:
+    """Leave each calibration machine out in turn: fit the served interval (every :data:`INTERVAL_VARIANTS` bound)
+    and the served error score (:class:`RowRisk`'s, thresholds of :data:`WARN_VARIANTS`) on the other machines'
+    rows of ``rows`` (:attr:`GeneralisationResult.calibration_rows`) and judge them on the machine left out.
+
+    This is where the served interval's bound and the warning threshold were chosen: on machines never trained
+    on, without the test machines. Needs at least three calibration machines (the interval's scale is
+    cross-fitted again inside the ones kept)."""
+    machines = rows["machine"].astype(str).to_numpy()
+    names = np.unique(machines)
+    if names.size < 3:
+        raise ValueError(f"cross-fitting over calibration machines needs at least three, got {names.size}")
+    x = rows[[f"served_{k}" for k in range(len(RowRisk.FEATURES))]].to_numpy(float)
+    residual, error = rows["residual"].to_numpy(float), rows["error"].to_numpy(float)
+    cov: dict[str, dict[str, float]] = {k: {} for k in INTERVAL_VARIANTS}
+    warned: dict[str, dict[str, float]] = {k: {} for k in WARN_VARIANTS}
+    risk = np.full(len(rows), np.nan)
+    for held in names:
+        out, keep = machines == held, machines != held
+        for label, kwargs in INTERVAL_VARIANTS.items():
+            interval = RowInterval.fit(x[keep], residual[keep], machines[keep], coverages=(coverage,), **kwargs)
+            cov[label][str(held)] = float(np.mean(np.abs(residual[out]) <= interval.half_width(x[out], coverage)))
+        for label, (quantile, share) in WARN_VARIANTS.items():
+            try:
+                score = ErrorScore(miss, warn_quantile=quantile, machine_share=share).fit(x[keep], error[keep],
+                                                                                       machines[keep])
+            except ValueError:  # no miss among the machines kept: no score, no warning
+                warned[label][str(held)] = 0.0
+                continue
+            risk[out] = score.score(x[out])
+            warned[label][str(held)] = float(np.mean(score.above(risk[out])))
+    ok = np.isfinite(risk)
+    return CrossFit(pd.DataFrame(cov), pd.DataFrame(warned),
+                    {line: auroc(risk[ok], error[ok] > line) for line in MISS_LINES},
+                    {line: int(np.sum(error > line)) for line in MISS_LINES})

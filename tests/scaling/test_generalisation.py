@@ -10,11 +10,18 @@ import pandas as pd
 import pytest
 
 from scaletwin.cli import main as cli_main
-from scaling.data.product_line import LINKAGE_GROUPS, ProductLine, add_design_signals
+from scaling.data.product_line import LINKAGE_GROUPS, PI1_LINKAGE, ProductLine, add_design_signals
 from scaling.data.recordings import generate_frame
 from scaling.dimensions.group_choice import PI1, POSE_GROUPS
 from scaling.dimensions.groups import PiGroup
-from scaling.evaluation.generalisation import Candidate, Split, evaluate, judged_rows
+from scaling.evaluation.generalisation import (
+    INTERVAL_VARIANTS,
+    Candidate,
+    Split,
+    cross_fit_served,
+    evaluate,
+    judged_rows,
+)
 from scaling.models import FFNN
 
 LINE = ProductLine(n_machines=6, seed=5, soils=("gravel",), pile_heights=(0.7,), dig_seeds=1, hold_episodes=1,
@@ -140,3 +147,35 @@ def test_several_sources_give_the_geometric_mean_of_their_forces(frame: pd.DataF
         np.testing.assert_allclose(pairs.recover(np.exp(log_pred)), value, rtol=1e-9)
     with pytest.raises(ValueError, match="no earlier fitted"):
         evaluate(frame, split, [Candidate("lonely", one.build, GROUPS, sources=2, same_model_as="ffnn")])
+
+
+CAL_LINE = ProductLine(n_machines=10, seed=5, soils=("gravel",), pile_heights=(0.7,), dig_seeds=1, hold_episodes=1,
+                       hold_poses=2, presets=("er12",))
+
+
+def test_served_interval_covers_what_it_claims_on_calibration_machines_left_out() -> None:
+    """On a small simulated product line (the ER12 and 3 drawn machines train, 7 calibrate), the served interval
+    and error score fitted on six calibration machines and judged on the seventh, each in turn
+    (``cross_fit_served``): the 90 % interval covers about 90 % of the rows of the machine it never saw (median
+    over the seven 0.8–0.97) and the 50 % one about half (0.3–0.7), the pooled bound 90 % of an average machine's
+    rows (mean over the seven 0.8–0.97), the bound for 90 % of the machines at least as much as the median
+    machine's; every share is a share."""
+    frame = add_design_signals(generate_frame(CAL_LINE.dataset_spec(), executor="serial"), CAL_LINE.specs())
+    names = [m.name for m in CAL_LINE.machines]
+    split = Split(train=("er12", *names[:3]), calibration=tuple(names[3:]), test=(), specs=CAL_LINE.specs())
+    cands = [Candidate("ffnn", lambda: FFNN(hidden_layers=1, units=16, epochs=60, include_source=True), GROUPS,
+                       PI1_LINKAGE)]
+    rows = evaluate(frame, split, cands).calibration_rows["ffnn"]
+    assert set(rows["machine"]) == set(split.calibration)
+    ninety, half = cross_fit_served(rows, coverage=0.9), cross_fit_served(rows, coverage=0.5)
+    served = next(iter(INTERVAL_VARIANTS))
+    assert list(ninety.coverage.index) == sorted(split.calibration)
+    assert 0.8 <= ninety.coverage[served].median() <= 0.97
+    assert 0.3 <= half.coverage[served].median() <= 0.7
+    assert 0.8 <= ninety.coverage["average machine (pooled)"].mean() <= 0.97  # its claim: an average machine
+    assert ninety.coverage["90 % of machines (before)"].median() >= ninety.coverage[served].median()
+    assert ((ninety.warned >= 0) & (ninety.warned <= 1)).all().all()
+    summary = ninety.summary()
+    assert summary["coverage"][served]["machines"] == 7
+    with pytest.raises(ValueError, match="at least three"):
+        cross_fit_served(rows[rows["machine"].isin(split.calibration[:2])])

@@ -398,7 +398,7 @@ def test_a_checkpoint_with_an_error_score_serves_it(built: tuple[Path, Path, Pro
     this path is tested whichever side of the miss line the tiny line's calibration rows fall."""
     path, _, cfg = built
     score = ErrorScore.from_state({"miss": 0.1, "warn_quantile": 0.95, "l2": 0.01, "machine_share": 0.9,
-                                   "mean": [0.0] * 4, "std": [1.0] * 4, "coef": [-1.0, 0.5, 3.0, -0.5, -0.8],
+                                   "mean": [0.0] * 5, "std": [1.0] * 5, "coef": [-1.0, 0.5, 3.0, -0.5, -0.8, 0.7],
                                    "threshold": 0.3})
     scored_path = _resaved(path, tmp_path / "scored", score, None)
     scored, model = zoo.load(scored_path), load_model(scored_path)

@@ -110,6 +110,8 @@ class ScaledForce:
     #: the rows whose risk is above the error score's calibrated threshold (the warning counts them); None
     #: where no risk was computed
     warned: np.ndarray | None = None
+    #: an ensemble's σ of ln δ1 per row (the spread of its members' mixture, 1); None for a point model
+    sigma: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.force)
@@ -398,7 +400,10 @@ class ScalingModel:
         force = np.sign(outs[0].force) * np.exp(logs.mean(axis=0))
         # recover() gives F ∝ δ1^(−1/exponent): the δ1 of the first source that recovers the mean force
         delta = outs[0].delta1 * np.exp((logs[0] - np.log(np.abs(force))) / self._inv_exp)
-        features = bound[0]._risk_features(x, delta)
+        # the sources' σ combined as the judge does (scaling.evaluation.generalisation.combine_sources): RMS
+        sigma = (None if outs[0].sigma is None
+                 else np.sqrt(np.mean([o.sigma**2 for o in outs if o.sigma is not None], axis=0)))
+        features = bound[0]._risk_features(x, delta, sigma)
         cov = self._spread(coverage)[0]
         try:
             half = interval.half_width(features, cov) * abs(self._inv_exp)
@@ -410,7 +415,7 @@ class ScalingModel:
         extrapolated = np.logical_or.reduce([o.extrapolated for o in outs])
         lo, hi = _bounds(force, half)
         return ScaledForce(self.variable, self.unit, force, lo, hi, delta, extrapolated, cov,
-                           f"learned-scale, {k} sources", risk, warned)
+                           f"learned-scale, {k} sources", risk, warned, sigma)
 
     def predict_array(self, x: np.ndarray, *, coverage: float | None = None,
                       sequences: Sequence[np.ndarray] | np.ndarray | None = None,
@@ -434,14 +439,15 @@ class ScalingModel:
             parts = self._recurrent_parts(x, spread, sequences, pick, threads)
         else:
             parts = map_ordered(lambda start: self._chunk(x, start, spread), range(0, n, CHUNK), threads)
-        force, lo, hi, delta, outside, g_out = (np.concatenate(c) for c in zip(*parts, strict=True))
+        force, lo, hi, delta, outside, g_out, sigma = (np.concatenate(c) for c in zip(*parts, strict=True))
+        spread_of_rows = sigma if isinstance(self.kernel, EnsembleKernel) else None
         if not np.all(np.isfinite(force)):
             raise InputError(f"target: {int((~np.isfinite(force)).sum())} rows give a non-finite {self.variable}")
         row_risk = warned = None
         method = "residual-quantiles" if self._row_interval is not None else self.interval_method
         if self.risk is not None and not isinstance(self.kernel, GRUKernel):  # its warnings replace the range's
             if risk:
-                features = self._risk_features(x, delta)
+                features = self._risk_features(x, delta, spread_of_rows)
                 if self._row_interval is not None:  # δ1·e^(±h) gives F21·e^(∓h/exponent)
                     lo, hi = _bounds(force, self._row_interval.half_width(features, spread[0]) * self._inv_exp)
                     method = self.interval_method
@@ -450,7 +456,7 @@ class ScalingModel:
         elif outside.any():
             self._warn(g_out, int(outside.sum()), len(outside))
         return ScaledForce(self.variable, self.unit, force, lo, hi, delta, outside, spread[0], method, row_risk,
-                           warned)
+                           warned, spread_of_rows)
 
     def _scored(self, score: ErrorScore, features: np.ndarray, context: str, stacklevel: int
                 ) -> tuple[np.ndarray, np.ndarray]:
@@ -465,17 +471,18 @@ class ScalingModel:
                           "machines; ScaledForce.risk per row)", ExtrapolationWarning, stacklevel=stacklevel)
         return risk, warned
 
-    def _risk_features(self, x: np.ndarray, delta: np.ndarray) -> np.ndarray:
+    def _risk_features(self, x: np.ndarray, delta: np.ndarray, sigma: np.ndarray | None = None) -> np.ndarray:
         """The served features of every row (:meth:`scaling.evaluation.conformal.RowRisk.features`): the novelty of its
         features g, |ln δ1|, whether the bucket is at rest (:func:`scaling.evaluation.metrics.at_rest` on the
-        target's F31, m_b, x_b, a1 and α1; moving when the model does not take them) and its tilt load."""
+        target's F31, m_b, x_b, a1 and α1; moving when the model does not take them), its tilt load and an
+        ensemble's σ of ln δ1 (``sigma``; None for a point model)."""
         assert self.risk is not None
         g = np.concatenate([self._features_of(x[s:s + CHUNK], s)[0] for s in range(0, len(x), CHUNK)])
         col = {v: i for i, v in enumerate(self.target_variables)}
         needed = ("F31", "m_b", "x_b", "a1", "alpha1")
         static = (at_rest(pd.DataFrame({v: x[:, col[v]] for v in needed})) if all(v in col for v in needed)
                   else np.zeros(len(x), dtype=bool))
-        return RowRisk.features(self.risk.novelty, g, np.log(delta), static, x[:, col["tilt_load"]])
+        return RowRisk.features(self.risk.novelty, g, np.log(delta), static, x[:, col["tilt_load"]], sigma)
 
     def _chunk(self, x: np.ndarray, start: int, spread: tuple[float, float, float]) -> tuple[np.ndarray, ...]:
         """:meth:`_finish` of feed-forward rows ``start:start + CHUNK``."""
@@ -516,7 +523,8 @@ class ScalingModel:
 
     def _finish(self, g: np.ndarray, rest: np.ndarray, mu: np.ndarray, var: np.ndarray | None,
                 pi1: float | np.ndarray, spread: tuple[float, float, float]) -> tuple[np.ndarray, ...]:
-        """(force, lower, upper, δ1, outside, g of the rows outside) from ln δ1 ``mu`` (and its variance)."""
+        """(force, lower, upper, δ1, outside, g of the rows outside, σ of ln δ1 (ones without a variance)) from
+        ln δ1 ``mu`` (and its variance)."""
         _, a, b = spread
         if var is not None:
             half = a * np.sqrt(var)
@@ -527,7 +535,8 @@ class ScalingModel:
         force = self._recover(pi1, delta, rest)
         f_a, f_b = self._recover(pi1, np.exp(lo_log), rest), self._recover(pi1, np.exp(hi_log), rest)
         outside = ((g < self._g_lo) | (g > self._g_hi)).any(axis=1)
-        return force, np.minimum(f_a, f_b), np.maximum(f_a, f_b), delta, outside, g[outside]
+        sigma = np.sqrt(var) if var is not None else np.ones(len(mu))
+        return force, np.minimum(f_a, f_b), np.maximum(f_a, f_b), delta, outside, g[outside], sigma
 
     # ------------------------------------------------------------------------------------------------ one row
 
