@@ -232,8 +232,9 @@ def report(table: pd.DataFrame, meta: dict) -> str:
                      f"{fmt(ex['auroc_ensemble_spread'].get(name))} |")
     lines += ["", "Served risk (`scaling.evaluation.conformal.RowRisk`, what a checkpoint such as `statics-pl` "
               "computes per row): the same kind of score on what a served model knows, the novelty of its feature "
-              "row, |ln δ1|, whether the bucket is at rest and the tilt load (the tilt cylinder's loaded-chamber "
-              "pressure over its relief pressure; the served interval's scale reads the first three only); it warns "
+              "row, |ln δ1|, whether the bucket is at rest, the tilt load (the tilt cylinder's loaded-chamber "
+              "pressure over its relief pressure) and an ensemble's own spread (σ of ln δ1; none for a point model); "
+              "the served interval's scale reads the first three only; it warns "
               "above a threshold that keeps the warnings to at most 4 % of the rows of every calibration machine. "
               "Its AUROC is also given for rows more than 3 % and 5 % off: few rows are more than 10 % off, so that "
               "figure rests on a handful of rows of a few machines."]

@@ -149,3 +149,32 @@ def test_product_line_card_states_the_leave_machine_out_proof(name: str) -> None
     assert card["metrics"]["multi_source"]["sources"] == card["interval"]["multi_source"]["sources"] == 3
     assert card["groups"]["output"]["expression"] == "F21/F21_linkage"
     assert card["training"]["model"]["config"]["include_source"] is True
+
+
+@pytest.mark.parametrize("name", [PRODUCT_LINE, ENSEMBLE_NAME])
+def test_product_line_risk_reads_the_spread_of_an_ensemble_only(name: str) -> None:
+    """On the shipped check set, the served error score reads the row's σ of ln δ1: the ensemble's own spread
+    (positive, not constant, its last served feature ln σ) for ``statics-pl-ens``, none (σ = 1, ln σ = 0) for the
+    point model ``statics-pl``; the risk is the card's score on those features; the card carries the calibration
+    machines' cross-fit figures of its interval and warnings."""
+    from zoo.serving.inputs import to_matrix
+
+    model = zoo.load(name)
+    directory, _ = zoo.resolve(name)
+    rows = check_rows(directory).drop(columns=["F21 [N]"])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", zoo.ExtrapolationWarning)
+        out = model.scale_force(None, rows)
+    assert model.risk is not None and out.risk is not None
+    features = model._risk_features(to_matrix(rows, model.target_variables, "target"), out.delta1, out.sigma)
+    if name == ENSEMBLE_NAME:
+        assert out.sigma is not None and np.all(out.sigma > 0) and np.ptp(out.sigma) > 0
+        np.testing.assert_allclose(features[:, -1], np.log(out.sigma))
+    else:
+        assert out.sigma is None and np.all(features[:, -1] == 0.0)
+    assert model.risk.score is not None
+    np.testing.assert_allclose(out.risk, model.risk.score.score(features), rtol=1e-9)
+    cross = model.card["metrics"]["calibration_cross_fit"]
+    served = cross["coverage"]["median machine (served)"]
+    assert served["machines"] == len(model.card["training"]["calibration_machines"])
+    assert 0.0 <= served["min"] <= served["median"] <= served["max"] <= 1.0
