@@ -220,7 +220,7 @@ def report(table: pd.DataFrame, meta: dict) -> str:
 
     def shares(table: dict[str, float]) -> str:
         share = pd.Series({m: v for m, v in table.items() if m not in ("mini", "wa475")}, dtype=float)
-        return f"{100 * share.median():.0f} % / {100 * share.max():.0f} %" if len(share) else "–"
+        return f"{100 * share.median():.1f} % / {100 * share.max():.1f} %" if len(share) else "–"
 
     for name, a in ex["auroc_design_distance"].items():
         at = ex.get("auroc_row_risk_at", {}).get(name, {})
