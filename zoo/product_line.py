@@ -307,8 +307,9 @@ def card_fields(model: DeltaModel, result: GeneralisationResult, reference: pd.S
                                           "and judged on it, each in turn (scaling.evaluation.generalisation."
                                           "cross_fit_served); where the served bound and threshold were chosen",
             "risk_note": "served per row (ScaledForce.risk): P(F21 more than 10 % off) from the novelty of the "
-                         "row's features among the training pairs', |ln δ1|, whether the bucket is at rest and the "
-                         "tilt load (tilt-cylinder force over its relief force), "
+                         "row's features among the training pairs', |ln δ1|, whether the bucket is at rest, the "
+                         "tilt load (tilt-cylinder force over its relief force) and, for an ensemble, its own "
+                         "spread (σ of ln δ1), "
                          "fitted on the calibration machines; risk_auroc: how well it separates the held-out "
                          "machines' rows more than 10 % off (0.5 = chance); it warns above a threshold that keeps "
                          "the warnings to at most 4 % of the rows of every calibration machine; risk_auroc_at: the "
