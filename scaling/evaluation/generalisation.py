@@ -23,6 +23,7 @@ the dig cycles and the moves between holds) apart.
 
 from __future__ import annotations
 
+import contextlib
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -563,12 +564,15 @@ class CrossFit:
     the others, applied to it (:func:`cross_fit_served`). ``coverage``: machine × interval variant, the share of
     the machine's rows inside the interval; ``warned``: machine × warning variant, the share of its rows warned on;
     ``auroc``: miss line → AUROC of the out-of-machine risk for rows more than that off (NaN where no rows are);
-    ``rows_over``: miss line → calibration rows more than that off."""
+    ``auroc_without_spread``: the same for the risk fitted without its last feature (an ensemble's spread: what the
+    served risk read before it; for a point model the same figures); ``rows_over``: miss line → calibration rows
+    more than that off."""
 
     coverage: pd.DataFrame
     warned: pd.DataFrame
     auroc: dict[float, float]
     rows_over: dict[float, int]
+    auroc_without_spread: dict[float, float] = field(default_factory=dict)
 
     def summary(self, low: float = 0.85, high: float = 0.95) -> dict[str, Any]:
         """Per interval variant: min, max and median coverage and the machines in [low, high]; per warning variant:
@@ -578,6 +582,7 @@ class CrossFit:
         warn = {k: {"median": float(w.median()), "max": float(w.max()), "above_5pct": int((w > 0.05).sum())}
                 for k, w in self.warned.items()}
         return {"coverage": cov, "warned": warn, "auroc": {str(k): v for k, v in self.auroc.items()},
+                "auroc_without_spread": {str(k): v for k, v in self.auroc_without_spread.items()},
                 "rows_over": {str(k): v for k, v in self.rows_over.items()}}
 
 
@@ -597,7 +602,7 @@ def cross_fit_served(rows: pd.DataFrame, *, coverage: float = 0.9, miss: float =
     residual, error = rows["residual"].to_numpy(float), rows["error"].to_numpy(float)
     cov: dict[str, dict[str, float]] = {k: {} for k in INTERVAL_VARIANTS}
     warned: dict[str, dict[str, float]] = {k: {} for k in WARN_VARIANTS}
-    risk = np.full(len(rows), np.nan)
+    risk, risk_without = np.full(len(rows), np.nan), np.full(len(rows), np.nan)
     for held in names:
         out, keep = machines == held, machines != held
         for label, kwargs in INTERVAL_VARIANTS.items():
@@ -612,7 +617,10 @@ def cross_fit_served(rows: pd.DataFrame, *, coverage: float = 0.9, miss: float =
                 continue
             risk[out] = score.score(x[out])
             warned[label][str(held)] = float(np.mean(score.above(risk[out])))
-    ok = np.isfinite(risk)
+        with contextlib.suppress(ValueError):  # no miss among the machines kept: no score
+            risk_without[out] = ErrorScore(miss).fit(x[keep, :-1], error[keep], machines[keep]).score(x[out, :-1])
+    ok, ok_without = np.isfinite(risk), np.isfinite(risk_without)
     return CrossFit(pd.DataFrame(cov), pd.DataFrame(warned),
                     {line: auroc(risk[ok], error[ok] > line) for line in MISS_LINES},
-                    {line: int(np.sum(error > line)) for line in MISS_LINES})
+                    {line: int(np.sum(error > line)) for line in MISS_LINES},
+                    {line: auroc(risk_without[ok_without], error[ok_without] > line) for line in MISS_LINES})
