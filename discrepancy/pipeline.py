@@ -13,6 +13,7 @@ from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from discrepancy.context import Context
 from discrepancy.data.channels import RecordingError
@@ -30,6 +31,7 @@ from discrepancy.stats.redundancy import Check, check_all, fault_admissible, sen
 from discrepancy.twin.align import Alignment, align
 from discrepancy.twin.runner import CachedReplays, Runner, make_runner
 from discrepancy.twin.spec import SimResult, Simulator, TwinSpec, check_compatible
+from discrepancy.twin.start import StartEstimate, pile_shift, refit_whole_log
 from scaletwin_envs.parallel import Executor
 from scaletwin_envs.recording import Recording
 
@@ -53,6 +55,9 @@ class DiagnoseOptions:
     finalists: int = FINALISTS  # rivals refitted before a round's winner is chosen
     budget: int = REPLAYS  # twin replays after which the searches stop (deterministic)
     time_budget: float = SECONDS  # seconds from the start after which the searches stop (safety net)
+    #: a log without seed whose twin leaves windows located: refit its start on the whole log and say how many stay
+    #: (:class:`StartCheck`; a few dozen whole-log replays)
+    start_check: bool = True
     progress: Callable[[str], None] | None = None  # called with each step's name as it starts (load, replay, …)
 
 
@@ -78,6 +83,31 @@ class ReportedEffect:
     separated_by: list[Alternative] = field(default_factory=list)  # evidence per alternative, same order
 
 
+@dataclass(frozen=True)
+class StartCheck:
+    """A log without seed, whose twin (its start fitted on the early dig) left windows located: the start refitted
+    on the whole log (:func:`~discrepancy.twin.start.refit_whole_log`) and how many windows stay located against it
+    (under its own null). What it clears, the log cannot tell from its pile: on the late dig a pile a little
+    steeper or nearer imitates a heavier payload, another centre of mass or a stickier soil."""
+
+    options: dict[str, float]  # reset options of the refitted start (rad, boom lengths)
+    located_before: int
+    located_after: int
+    replays: int
+    #: how far the refitted pile lies from the twin's nominal one, half-ranges of the env's draw (2: the range
+    #: searched; the further, the less likely such a pile)
+    pile_shift: float = 0.0
+
+    @property
+    def cleared(self) -> bool:
+        """Whether the refitted start leaves nothing located."""
+        return self.located_after == 0
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"options": dict(self.options), "located_before": self.located_before,
+                "located_after": self.located_after, "replays": self.replays, "pile_shift": self.pile_shift}
+
+
 @dataclass
 class Diagnosis:
     """Everything a diagnosis found, with the traces needed to report it."""
@@ -99,6 +129,7 @@ class Diagnosis:
     noise: NoiseModel | None = None
     budget: Budget | None = None  # the search budget and whether it cut the search short
     alignment: Alignment | None = None  # start, sensor filter and time offset estimated before comparing
+    start_check: StartCheck | None = None  # a log without seed: what a start refitted on the whole log leaves
 
     @property
     def named(self) -> list[str]:
@@ -214,6 +245,10 @@ def _run(train: EpisodeData, held_twins: list[tuple[EpisodeData, Runner]], spec:
     with timer.step("locate"):
         found = locate(ctx.z(ctx.matrix(ctx.nominal)), ctx.time, ctx.windows(), ctx.names, null.calibration,
                        opts.alpha)
+    check = None
+    if opts.start_check and alignment.start is not None and found.located:
+        with timer.step("start check"):
+            check = _start_check(train, spec, runner, alignment.start, opts, len(found.located))
     with timer.step("redundancy"):
         checks = check_all(spec.loader, train.signals, twin2.signals, null.channel_noise, train.dt)
         suspects = sensor_suspects(checks, {loc.signal for loc in found.located})
@@ -241,8 +276,23 @@ def _run(train: EpisodeData, held_twins: list[tuple[EpisodeData, Runner]], spec:
     reported = _reported(ctx, ident, result, found)
     timer.steps["total"] = sum(timer.steps.values())
     return Diagnosis(spec, ctx.names, found.located, reported, comparison, ident, result, checks, timer.steps, train,
-                     held, traces, found, replays.runs + sum(r.runs for r in reps if r is not replays) + 1, ctx.noise,
-                     ctx.budget, alignment)
+                     held, traces, found, replays.runs + sum(r.runs for r in reps if r is not replays) + 1
+                     + (check.replays if check else 0), ctx.noise, ctx.budget, alignment, check)
+
+
+def _start_check(train: EpisodeData, spec: TwinSpec, runner: Runner, estimate: StartEstimate,
+                 opts: DiagnoseOptions, before: int) -> StartCheck:
+    """:class:`StartCheck`: the start refitted on the whole log, then null and locate against it as against the
+    twin (the diagnosis itself keeps the twin's start)."""
+    refit = refit_whole_log(train, runner, estimate)
+    other = CachedReplays(runner.with_twin(dataclasses.replace(spec, start=refit.options, start_draws=refit.draws)),
+                          train.commands, train.time)
+    ctx = Context.build(train, other)
+    null = calibrate(ctx, opts.null)
+    use(ctx, null)
+    found = locate(ctx.z(ctx.matrix(ctx.nominal)), ctx.time, ctx.windows(), ctx.names, null.calibration, opts.alpha)
+    return StartCheck(dict(refit.options), before, len(found.located), refit.replays + other.runs + 1,
+                      pile_shift(runner, refit.options))
 
 
 def _reported(ctx: Context, ident: Identification, result: FitResult | None, found: LocateResult

@@ -117,6 +117,8 @@ def to_json(d: Diagnosis) -> dict[str, Any]:
         doc["input"] = d.train.input_report.to_dict()
     if d.alignment is not None:
         doc["alignment"] = d.alignment.to_dict()
+    if d.start_check is not None:  # only for a log without seed whose twin left windows located
+        doc["start_check"] = d.start_check.to_dict()
     if d.identification.drift:  # only then: what was located is put down to the sensors' drift
         doc["drift"] = list(d.identification.drift)
     validate(doc)
@@ -243,6 +245,17 @@ def input_notes(d: Diagnosis) -> list[str]:
         out += list(rep.warnings)
     if d.alignment is not None:
         out += [n[0].upper() + n[1:] + "." for n in d.alignment.notes]
+    if (c := d.start_check) is not None:
+        pile = (f"pile {c.options.get('pile_distance', math.nan):.3g} boom lengths away, repose angle "
+                f"{math.degrees(c.options.get('repose_angle', math.nan)):.3g}°, {c.pile_shift:.2g} half-ranges of "
+                "the env's draw from the twin's pile")
+        if c.cleared:
+            out.append(f"A start refitted on the whole log ({pile}) leaves none of the {c.located_before} located "
+                       "windows: all of it may be the pile, which a log without seed does not pin down, rather than "
+                       "what is named below.")
+        else:
+            out.append(f"Against a start refitted on the whole log ({pile}) {c.located_after} windows stay located "
+                       f"({c.located_before} against the twin's start): the pile alone does not explain them.")
     return out
 
 
