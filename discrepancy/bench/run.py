@@ -158,6 +158,7 @@ def _run(case: Case, options: DiagnoseOptions | None, folder: Path) -> dict[str,
         "budget": d.budget.to_dict() if d.budget else None, "workers": (options or DiagnoseOptions()).workers,
         "log_rows": real.meta.get("rows"), "tool_rows": len(d.train), "twin_seed_used": d.twin.seed,
         "input_report": _input_report(d), "true_offset_s": cond.offset_s,
+        "start_check": d.start_check.to_dict() if d.start_check else None,
         "load": os.getloadavg()[0] if hasattr(os, "getloadavg") else None,
     }
 

@@ -237,6 +237,7 @@ def table(results: list[dict[str, Any]], header: str = "", families: Sequence[st
     cut = [r for r in ran if (r.get("budget") or {}).get("cut")]
     lines += ["", f"Search cut short by its budget in {len(cut)} of {len(ran)} cases "
               f"({', '.join(sorted({r['budget']['cut'] for r in cut})) or 'none'}).", ""]
+    lines += start_check_lines(ran)
     errors = [r for r in results if r.get("error")]
     if errors:
         lines += ["## Errors", "", "| # | kind | family | condition | error |", "|---|---|---|---|---|"]
@@ -257,6 +258,23 @@ def table(results: list[dict[str, Any]], header: str = "", families: Sequence[st
                      f"| {r.get('simulations', '-')} | {b.get('cut') or '-'} | "
                      f"{'-' if load is None else f'{load:.1f}'} | {r['diagnosis_s']:.1f} |")
     return "\n".join(lines) + "\n"
+
+
+def start_check_lines(ran: list[dict[str, Any]]) -> list[str]:
+    """How often a start refitted on the whole log (``Diagnosis.start_check``, logs without seed whose twin left
+    windows located) cleared every located window, per case kind: on a null that says the pile explains what was
+    located; on a planted effect, that the log cannot tell the effect from its pile."""
+    checked = [r for r in ran if r.get("start_check")]
+    if not checked:
+        return []
+    parts = []
+    for kind in ("null", "single", "double", "ooc"):
+        rows = [r for r in checked if r["kind"] == kind]
+        if rows:
+            cleared = sum(r["start_check"]["located_after"] == 0 for r in rows)
+            parts.append(f"{kind} {cleared} of {len(rows)}")
+    return [f"Start check (a log without seed whose twin left windows located; the start refitted on the whole "
+            f"log): it left nothing located in {', '.join(parts)} such cases.", ""]
 
 
 def _cell(text: str, limit: int = 160) -> str:

@@ -15,6 +15,7 @@ from discrepancy.bench import sensor_noise as sn
 from discrepancy.bench.cases import KIND_PATTERN, MIN_DECADES, RANGES, make_case, make_cases
 from discrepancy.bench.logs import LOG_UNITS, Condition, resample, write_csv
 from discrepancy.bench.run import parse_label
+from discrepancy.bench.scoring import start_check_lines
 from scaletwin_envs.recording import import_recording
 
 
@@ -203,3 +204,15 @@ def test_a_failing_case_is_recorded_not_raised(monkeypatch: pytest.MonkeyPatch) 
 
     assert summary([result])["errors"] == 1 and "## Errors" in table([result])
     assert csv_row(result)["error"] == result["error"]
+
+
+def test_start_check_counts_cleared_cases_per_kind() -> None:
+    """The benchmark report counts, per case kind, the logs without seed whose whole-log start cleared every
+    located window; nothing is said when no case was checked."""
+    def case(kind: str, after: int | None) -> dict:
+        return {"kind": kind, "start_check": None if after is None else {"located_after": after}}
+
+    ran = [case("null", 0), case("null", 2), case("single", 0), case("single", None), case("ooc", 4)]
+    line = " ".join(start_check_lines(ran))
+    assert "null 1 of 2" in line and "single 1 of 1" in line and "ooc 0 of 1" in line and "double" not in line
+    assert start_check_lines([case("null", None)]) == []
