@@ -21,9 +21,8 @@ quantiles. It also carries an error score served per row
 which fired on a quarter of a new machine's rows at 0.5 % error.
 
 How to use it: compute the design signals of both machines from their specs, pair every target row with its
-matched source row (:func:`scaling.data.product_line.match_rows`: same kind, nearest in pose and fill,
-avoiding source rows under 2 % tilt load where a loaded one lies within 0.05 of the nearest) and pass the paired
-rows (``model.scale_force(source.iloc[idx], target)``); see ``examples/scale_product_line.py``.
+matched source row (:func:`scaling.data.product_line.match_rows`: same kind, nearest in pose and fill) and pass the
+paired rows (``model.scale_force(source.iloc[idx], target)``); see ``examples/scale_product_line.py``.
 """
 
 from __future__ import annotations
@@ -71,8 +70,7 @@ ENSEMBLE_SUMMARY = ("δ1 deep ensemble (3 members) across a sampled product line
                     "source rows; from one calibrated machine or, best, three (geometric mean, interval calibrated "
                     "for three sources on held-out machines).")
 DELTA_CONVENTION = ("source = a calibrated machine of the product line, one matched row per target row (same kind, "
-                    "nearest in boom angle, bucket pitch and fill, a source row under 2 % tilt load giving way to a "
-                    "loaded one at most 0.05 farther: scaling.data.product_line.match_rows); target = the "
+                    "nearest in boom angle, bucket pitch and fill: scaling.data.product_line.match_rows); target = the "
                     "machine to predict; δ1 = π1(source)/π1(target), π1 = F21/F21_linkage, and F21_target = "
                     "F21_linkage_target · π1(source) / δ1. F21_linkage = tilt_ratio · |Pf_tilt| follows from the "
                     "target's drawing, pose and tilt-cylinder force (scaling.data.product_line.add_design_signals).")

@@ -13,9 +13,8 @@ and traction (:mod:`scaletwin_envs.design_space`). This module turns such a line
   ``F21_linkage`` = tilt_ratio · |Pf_tilt| (N), the pin force of the massless linkage, which normalises F21 in
   the output group :data:`PI1_LINKAGE` (the ML then learns only what the statics leave out: link weights,
   inertia, end stops);
-* :func:`match_rows`: for each target row the source row of the same kind (dig or hold) nearest in pose and fill,
-  avoiding source rows at near-zero tilt load where a loaded one lies almost as near: δ1 between matched rows
-  measures the machines' difference, not the difference between two moments of a cycle;
+* :func:`match_rows`: for each target row the source row of the same kind (dig or hold) nearest in pose and fill:
+  δ1 between matched rows measures the machines' difference, not the difference between two moments of a cycle;
 * :func:`training_pairs`: every row of every machine as a target, with matched rows of other machines as sources,
   so that any calibrated machine can be the source;
 * :func:`machine_folds`: grouped K-fold over machines (no machine on both sides).
@@ -49,17 +48,6 @@ LINKAGE_GROUPS: tuple[PiGroup, ...] = tuple(PiGroup({v: Fraction(1)}, name=v)
 MATCH_KEYS: tuple[str, ...] = ("boom_angle", "bucket_pitch", "fill")
 #: Fill is weighted so that 10 % of rated load counts as much as 0.1 rad of pose.
 MATCH_WEIGHTS: tuple[float, ...] = (1.0, 1.0, 1.0)
-#: Tilt load (1: loaded-chamber force over relief force) under which a source row is avoided when matching. Below
-#: it F21 is a small difference of large link forces and π1 = F21 / F21_linkage is ill-conditioned: on the 25
-#: training machines of the zoo's line (all rows, dig and hold), the median |ln π1| off each machine's median at
-#: tilt load > 0.2 is 0.02-0.03 for dig rows at loads 0.01-0.03 but 0.18 at 0.005-0.01 and 0.3-1.0 below 0.005;
-#: for holds 0.02 at 0.02-0.03 but 0.09 at 0.01-0.02 (hence 0.02, not 0.01), and 1.8-2.9 below (a few rows).
-MATCH_MIN_TILT_LOAD: float = 0.02
-#: How much farther (in the weighted :data:`MATCH_KEYS`) a source row at or above :data:`MATCH_MIN_TILT_LOAD`
-#: may lie than the nearest row for it to be taken instead. On the 16 calibration machines matched to their
-#: nearest training machine, the nearest loaded row lay at most 0.019 farther (99th percentile; median 0.011)
-#: for the 75 of 33 740 judged rows whose nearest source row was under the load.
-MATCH_LOAD_SLACK: float = 0.05
 
 
 @dataclass(frozen=True)
@@ -161,15 +149,9 @@ def _ratio(spec: LoaderSpec, boom: float, pitch: float) -> float:
 
 
 def match_rows(source: pd.DataFrame, target: pd.DataFrame, keys: Sequence[str] = MATCH_KEYS,
-               weights: Sequence[float] = MATCH_WEIGHTS, min_tilt_load: float = MATCH_MIN_TILT_LOAD,
-               slack: float = MATCH_LOAD_SLACK) -> np.ndarray:
+               weights: Sequence[float] = MATCH_WEIGHTS) -> np.ndarray:
     """Positional index into ``source`` of the matched row of every ``target`` row: same ``kind`` (when both
     have one; any kind where the source has none of it), nearest in the weighted ``keys``.
-
-    Where the source has a ``tilt_load`` column, a nearest row whose |tilt load| is under ``min_tilt_load`` (π1
-    ill-conditioned there, :data:`MATCH_MIN_TILT_LOAD`) gives way to the nearest row at or above it when that one
-    lies at most ``slack`` farther (weighted key units: rad, rad, 1); otherwise the nearest row is kept.
-    ``min_tilt_load`` 0 matches on the keys alone.
 
     Raises:
         KeyError: a key is missing.  ValueError: ``source`` is empty.
@@ -181,8 +163,6 @@ def match_rows(source: pd.DataFrame, target: pd.DataFrame, keys: Sequence[str] =
     w = np.asarray(weights, dtype=float)
     s = np.nan_to_num(source[list(keys)].to_numpy(float)) * w
     t = np.nan_to_num(target[list(keys)].to_numpy(float)) * w
-    loaded = (np.abs(np.nan_to_num(source["tilt_load"].to_numpy(float))) >= min_tilt_load
-              if "tilt_load" in source.columns and min_tilt_load > 0 else np.ones(len(source), dtype=bool))
     out = np.empty(len(target), dtype=np.int64)
     s_kind = source["kind"].astype(str).to_numpy() if "kind" in source.columns else np.full(len(source), "")
     t_kind = target["kind"].astype(str).to_numpy() if "kind" in target.columns else np.full(len(target), "")
@@ -191,22 +171,15 @@ def match_rows(source: pd.DataFrame, target: pd.DataFrame, keys: Sequence[str] =
         si = np.nonzero(s_kind == kind)[0]
         if si.size == 0:
             si = np.arange(len(source))
-        dist, nearest = cKDTree(s[si]).query(t[ti])
+        _, nearest = cKDTree(s[si]).query(t[ti])
         out[ti] = si[nearest]
-        good = si[loaded[si]]
-        weak = ~loaded[out[ti]]
-        if good.size and weak.any():
-            alt_dist, alt = cKDTree(s[good]).query(t[ti[weak]])
-            take = alt_dist <= dist[weak] + slack
-            out[ti[weak][take]] = good[alt[take]]
     return out
 
 
 def matched_pairs(source: pd.DataFrame, target: pd.DataFrame, output_group: PiGroup,
-                  input_groups: Sequence[PiGroup], reference_id: int = 0,
-                  min_tilt_load: float = MATCH_MIN_TILT_LOAD) -> DeltaDataset:
-    """Every ``target`` row paired with its matched ``source`` row (:func:`match_rows`, ``min_tilt_load`` its)."""
-    idx = match_rows(source, target, min_tilt_load=min_tilt_load)
+                  input_groups: Sequence[PiGroup], reference_id: int = 0) -> DeltaDataset:
+    """Every ``target`` row paired with its matched ``source`` row (:func:`match_rows`)."""
+    idx = match_rows(source, target)
     return DeltaDataset.from_matched(source.iloc[idx], target, output_group, input_groups,
                                      reference_id=reference_id)
 
@@ -214,9 +187,7 @@ def matched_pairs(source: pd.DataFrame, target: pd.DataFrame, output_group: PiGr
 def training_pairs(frame: pd.DataFrame, output_group: PiGroup, input_groups: Sequence[PiGroup],
                    n_sources: int = 1, seed: int = 0) -> DeltaDataset:
     """Pairs for learning δ1 across a product line: each machine's rows as targets, each with matched rows of
-    ``n_sources`` other machines drawn at random (seeded) as sources; ``reference`` = the source draw (0..).
-    Matched on pose and fill alone (``min_tilt_load`` 0): the served models were trained that way, and a
-    prediction's source row avoiding low tilt loads (:func:`match_rows`' default) is a subset of such pairs."""
+    ``n_sources`` other machines drawn at random (seeded) as sources; ``reference`` = the source draw (0..)."""
     machines = sorted(frame["machine"].astype(str).unique())
     if len(machines) < 2:
         raise ValueError(f"training pairs need at least two machines, got {machines}")
@@ -226,8 +197,7 @@ def training_pairs(frame: pd.DataFrame, output_group: PiGroup, input_groups: Seq
     for m in machines:
         others = [o for o in machines if o != m]
         for r, src in enumerate(rng.choice(others, size=min(n_sources, len(others)), replace=False)):
-            parts.append(matched_pairs(by_machine[str(src)], by_machine[m], output_group, input_groups, r,
-                                       min_tilt_load=0.0))
+            parts.append(matched_pairs(by_machine[str(src)], by_machine[m], output_group, input_groups, r))
     return concat_datasets(parts)
 
 

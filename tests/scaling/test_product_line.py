@@ -112,20 +112,6 @@ def _rows(kind: list[str], boom: list[float], pitch: list[float], fill: list[flo
     return pd.DataFrame({"kind": kind, "boom_angle": boom, "bucket_pitch": pitch, "fill": fill, **extra})
 
 
-def test_match_rows_avoids_source_rows_at_low_tilt_load_when_a_loaded_one_is_near() -> None:
-    """A nearest source row under the tilt-load floor gives way to a loaded row at most ``slack`` farther; with no
-    loaded row that near (or none at all) the nearest row stays; ``min_tilt_load`` 0 matches on pose and fill."""
-    source = _rows(["dig"] * 3, [0.0, 0.03, 0.5], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0], tilt_load=[0.001, 0.3, -0.4])
-    target = _rows(["dig"], [0.0], [0.0], [0.0])
-    assert match_rows(source, target).tolist() == [1]  # the loaded row 0.03 rad off, within the 0.05 slack
-    assert match_rows(source, target, min_tilt_load=0.0).tolist() == [0]
-    assert match_rows(source.iloc[[0, 2]], target).tolist() == [0]  # the loaded row 0.5 rad off: too far
-    assert match_rows(source.iloc[[0, 2]], target, slack=1.0).tolist() == [1]  # |-0.4| counts as loaded
-    only_weak = source.iloc[[0]].assign(tilt_load=[0.0])
-    assert match_rows(only_weak, target).tolist() == [0]
-    assert match_rows(source.drop(columns="tilt_load"), target).tolist() == [0]  # no load known: pose and fill
-
-
 def test_match_rows_finds_the_nearest_row_of_the_same_kind() -> None:
     """The matched source row is the nearest in (boom, pitch, fill) among rows of the target's kind, even when a
     row of another kind is nearer; positions, not index labels, are returned; any kind when the source lacks it."""
@@ -280,8 +266,7 @@ def test_training_pairs_take_sources_from_other_machines(line_frame: pd.DataFram
             owners = [m for m in machines if set(pairs.pi1_source[sel]) <= pi1[m]]
             assert len(owners) == 1 and owners[0] != target, (target, ref, owners)
             used.append(owners[0])
-            # training pairs are matched on pose and fill alone (the served models were trained so)
-            alone = matched_pairs(by_machine[owners[0]], by_machine[target], PI1, groups, ref, min_tilt_load=0.0)
+            alone = matched_pairs(by_machine[owners[0]], by_machine[target], PI1, groups, ref)
             np.testing.assert_array_equal(pairs.pi_source[sel], alone.pi_source)
             np.testing.assert_array_equal(pairs.pi_target[sel], alone.pi_target)
         assert sorted(used) == sorted(set(machines) - {target})  # both other machines serve as sources
