@@ -363,14 +363,16 @@ def resample_commands(time: np.ndarray, commands: np.ndarray, grid: np.ndarray, 
     """
     time = np.asarray(time, dtype=np.float64)
     cmds = np.asarray(commands, dtype=np.float64).reshape(len(time), -1)
-    held = _held_means(time, cmds, grid, dt)
     # interval of each timestamp: k with t_k - dt < t <= t_k (a sample on a grid time ends that step's interval)
     k = np.ceil((time - grid[0]) / dt - GRID_TOLERANCE).astype(int)
     inside = (k >= 0) & (k < len(grid))
     k, x = k[inside], cmds[inside]
     counts = np.bincount(k, minlength=len(grid))
     sums = np.stack([np.bincount(k, weights=x[:, i], minlength=len(grid)) for i in range(x.shape[1])], axis=1)
-    out = np.where(counts[:, None] > 0, sums / np.maximum(counts, 1)[:, None], held)
+    out = sums / np.maximum(counts, 1)[:, None]
+    empty = counts == 0
+    if empty.any():
+        out[empty] = _held_means(time, cmds, grid, dt)[empty]
     spread = np.zeros((len(grid), x.shape[1]))
     for i in range(x.shape[1]):
         np.maximum.at(spread[:, i], k, np.abs(x[:, i] - out[k, i]))

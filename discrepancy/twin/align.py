@@ -77,11 +77,12 @@ def _head(signals: dict[str, np.ndarray], rows: int) -> dict[str, np.ndarray]:
     return {c: v[:rows] for c, v in signals.items()}
 
 
-def _channel_taus(ep: EpisodeData, spec: TwinSpec, runner: Runner, rows: int) -> tuple[tuple[str, float], ...]:
-    """Each channel's own sensor time constant (s) against the twin ``spec`` without its filters (one replay) over
-    the first ``rows`` rows, where it differs from the common ``spec.sensor_tau`` by at least :data:`TOLERANCE`
-    control steps (:func:`estimate_channel_taus`)."""
-    nominal = runner.with_twin(dataclasses.replace(spec, sensor_tau=0.0, sensor_taus=())).run_many(
+def _channel_taus(ep: EpisodeData, spec: TwinSpec, runner: Runner, rows: int,
+                  plain: SimResult | None = None) -> tuple[tuple[str, float], ...]:
+    """Each channel's own sensor time constant (s) against the twin ``spec`` without its filters (``plain``, that
+    replay where the caller has it; else one replay) over the first ``rows`` rows, where it differs from the common
+    ``spec.sensor_tau`` by at least :data:`TOLERANCE` control steps (:func:`estimate_channel_taus`)."""
+    nominal = plain or runner.with_twin(dataclasses.replace(spec, sensor_tau=0.0, sensor_taus=())).run_many(
         ep.commands, [Plan()])[0]
     if nominal.error:
         return ()
@@ -132,6 +133,9 @@ def align(ep: EpisodeData, spec: TwinSpec, runner: Runner) -> tuple[EpisodeData,
         tau = estimate_sensor_tau(_head(ep.signals, trusted), _head(nominal.signals, trusted), ep.dt)
     seen = _filtered(nominal, ep.dt, tau)
     rest, undo = _offset(ep.head(trusted), _head(seen, trusted), notes, signal_spread(seen))
+    # the replay above is the twin without filters at the offset kept, unless the spec declares a filter or the
+    # offset moved: then each channel's filter needs a replay of its own
+    plain = nominal if not undo and spec.sensor_tau == 0.0 and not spec.sensor_taus else None
     if undo:
         total, applied, offset = total + rest.offset, True, rest
         spec = dataclasses.replace(spec, time_offset=total)
@@ -139,7 +143,7 @@ def align(ep: EpisodeData, spec: TwinSpec, runner: Runner) -> tuple[EpisodeData,
         notes.append(f"time offset between the log's signals and its commands: {total:.3g} s, applied to the twin "
                      "(read at the log's times)")
     if tau > 0:
-        spec = dataclasses.replace(spec, sensor_tau=tau, sensor_taus=_channel_taus(ep, spec, runner, trusted))
+        spec = dataclasses.replace(spec, sensor_tau=tau, sensor_taus=_channel_taus(ep, spec, runner, trusted, plain))
         notes.append(f"the log's channels went through a first-order sensor filter: tau {tau:.3g} s estimated, "
                      "applied to the twin")
         if spec.sensor_taus:
