@@ -36,6 +36,9 @@ from scaletwin_envs.parallel import Executor
 from scaletwin_envs.recording import Recording
 
 Source = EpisodeData | Recording | str | Path
+#: The alternative a cleared :class:`StartCheck` adds to every named effect: the log's own pile (and start), which
+#: a log without seed does not pin down.
+PILE_ALTERNATIVE = "pile"
 
 
 @dataclass(frozen=True)
@@ -274,6 +277,7 @@ def _run(train: EpisodeData, held_twins: list[tuple[EpisodeData, Runner]], spec:
         if held:
             traces[train.name] = {"twin": replays.get([]), "corrected": replays.get(effects)}
     reported = _reported(ctx, ident, result, found)
+    name_the_pile(reported, check)
     timer.steps["total"] = sum(timer.steps.values())
     return Diagnosis(spec, ctx.names, found.located, reported, comparison, ident, result, checks, timer.steps, train,
                      held, traces, found, replays.runs + sum(r.runs for r in reps if r is not replays) + 1
@@ -293,6 +297,21 @@ def _start_check(train: EpisodeData, spec: TwinSpec, runner: Runner, estimate: S
     found = locate(ctx.z(ctx.matrix(ctx.nominal)), ctx.time, ctx.windows(), ctx.names, null.calibration, opts.alpha)
     return StartCheck(dict(refit.options), before, len(found.located), refit.replays + other.runs + 1,
                       pile_shift(runner, refit.options))
+
+
+def name_the_pile(reported: list[ReportedEffect], check: StartCheck | None) -> None:
+    """When ``check`` cleared (a start refitted on the whole log left nothing located), list the pile
+    (:data:`PILE_ALTERNATIVE`) among the alternatives of every named effect and first among the closest candidates
+    of ``unexplained``: the log cannot tell them from another pile. Its evidence in ``separated_by``: objective +0
+    (the refitted start leaves only noise), no separating channel (empty, not in the log). In place."""
+    if check is None or not check.cleared:
+        return
+    for e in reported:
+        if e.effect != UNEXPLAINED and PILE_ALTERNATIVE not in e.alternatives:
+            e.alternatives.append(PILE_ALTERNATIVE)
+            e.separated_by.append(Alternative(PILE_ALTERNATIVE, 0.0, "", False, 0.0))
+        elif e.effect == UNEXPLAINED and PILE_ALTERNATIVE not in e.confounded_with:
+            e.confounded_with.insert(0, PILE_ALTERNATIVE)
 
 
 def _reported(ctx: Context, ident: Identification, result: FitResult | None, found: LocateResult

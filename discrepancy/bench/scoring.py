@@ -30,6 +30,8 @@ SHOWS, HIDDEN = 40.0, 10.0
 #: (F1, median parameter error, coverage).
 TARGETS = {"top1": 0.90, "named_as_set": 0.90, "f1": 0.85, "param_error": 0.15, "coverage": 0.80,
            "after_before": 0.5, "double": 0.80, "null": 0.95, "ooc": 0.90, "within25": 0.90}
+#: Diagnosis time on 2 cores, s (issue 14): median and maximum over the cases.
+TIME_TARGETS = {"median": 20.0, "max": 45.0}
 #: Relative parameter error under which a named single effect counts as "within 25 %".
 WITHIN = 0.25
 #: Targets met by staying at or under them (all others: at or over).
@@ -91,11 +93,9 @@ def _fmt(x: float, pct: bool = True) -> str:
 
 
 def _met(key: str, value: float) -> str:
-    """``yes``/``no`` against :data:`TARGETS` (time: ≤ 60 s), ``-`` when there is nothing to score."""
+    """``yes``/``no`` against :data:`TARGETS`, ``-`` when there is nothing to score."""
     if not np.isfinite(value):
         return "-"
-    if key == "time":
-        return "yes" if value <= 60.0 else "no"
     return "yes" if (value <= TARGETS[key] if key in LOWER_IS_BETTER else value >= TARGETS[key]) else "no"
 
 
@@ -215,8 +215,10 @@ def table(results: list[dict[str, Any]], header: str = "", families: Sequence[st
         lines.append(f"| {label} | {_fmt(s[key], pct)} | {cmp} {_fmt(TARGETS[key], pct)} | {_met(key, s[key])} "
                      f"| {n} |")
     times = f"{s['diagnosis_median_s']:.1f} s / {s['diagnosis_max_s']:.1f} s"
-    lines.append(f"| diagnosis time in this run, median / max | {times} | ≤ 60 s | {_met('time', s['diagnosis_max_s'])}"
-                 " | all |")
+    met = "-" if not np.isfinite(s["diagnosis_max_s"]) else "yes" if (
+        s["diagnosis_median_s"] <= TIME_TARGETS["median"] and s["diagnosis_max_s"] <= TIME_TARGETS["max"]) else "no"
+    lines.append(f"| diagnosis time in this run, median / max | {times} | ≤ {TIME_TARGETS['median']:.0f} s / "
+                 f"≤ {TIME_TARGETS['max']:.0f} s | {met} | all |")
     lines += ["", f"Cases: {s['n']}, of which {s['errors']} raised an error (listed below, scored nowhere); "
               f"{s['n_faint']} single effects planted too faint to show anywhere are not scored.", ""]
     note = ("Each cell: the figure (cases it is over); ✗ marks a missed target (nulls ≥ 95 %, top-1 ≥ 90 %, both "

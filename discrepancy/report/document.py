@@ -18,9 +18,10 @@ dimensionless group as ``pi_<parameter>``, ``units`` the SI unit of each paramet
 effect's likelihood weight exp(−ΔJ/2) among all trials of its round, null on ``unexplained``;
 ``explained_fraction`` the share of the excess residual left before its round that the effect (on
 ``unexplained``: the closest candidate) removes; ``alternatives`` the effect labels the recording cannot tell apart
-from it. ``fit`` is on held-out cycles when ``held_out``; a ``flags`` entry ("worse", "normaliser near zero") marks
-an NRMSE not to be trusted as an improvement (:func:`discrepancy.search.fit.entry_flags`), and ``worse_overall``
-says the correction made the comparison worse as a whole. ``search`` is there only when the search budget
+from it (``"pile"`` when a start refitted on a seedless log's whole length leaves nothing located). ``fit`` is on
+held-out cycles when ``held_out``; a ``flags`` entry ("worse", "normaliser near zero") marks an NRMSE not to be
+trusted as an improvement (:func:`discrepancy.search.fit.entry_flags`), and ``worse_overall`` says the correction
+made the comparison worse as a whole. ``search`` is there only when the search budget
 (:mod:`discrepancy.search.budget`) cut the search short (``cut``: "replays" or "time").
 """
 
@@ -36,7 +37,7 @@ from typing import Any
 import numpy as np
 
 from discrepancy.effects import CATALOGUE, UNEXPLAINED
-from discrepancy.pipeline import Diagnosis, ReportedEffect
+from discrepancy.pipeline import PILE_ALTERNATIVE, Diagnosis, ReportedEffect
 from discrepancy.report.schema import validate
 from discrepancy.search.fit import WORSE, Comparison
 from scaletwin_envs.signal_units import SIGNAL_UNITS
@@ -199,6 +200,10 @@ def effect_lines(e: ReportedEffect) -> tuple[str, list[str]]:
     if e.alternatives:
         lines.append("cannot be told apart from: " + ", ".join(e.alternatives))
         for a in e.separated_by:
+            if a.label == PILE_ALTERNATIVE:
+                lines.append(f"  {a.label}: a start refitted on the whole log leaves nothing located; a log without "
+                             "seed does not pin its pile down")
+                continue
             where = "in this log" if a.in_log else "not in this log"
             lines.append(f"  {a.label}: objective +{a.delta_objective:.1f}; {a.channel} ({where}) separates them "
                          f"best ({a.separation:.1f} noise SD apart)")

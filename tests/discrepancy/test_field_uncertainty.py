@@ -25,7 +25,8 @@ from discrepancy.data.fieldlog import (
     moved_commands,
     resample_commands,
 )
-from discrepancy.pipeline import DiagnoseOptions, StartCheck, diagnose
+from discrepancy.effects import UNEXPLAINED
+from discrepancy.pipeline import PILE_ALTERNATIVE, DiagnoseOptions, ReportedEffect, StartCheck, diagnose, name_the_pile
 from discrepancy.report.document import text_report, to_json
 from discrepancy.twin.plant import Plan
 from discrepancy.twin.runner import SerialRunner
@@ -241,3 +242,33 @@ def test_the_start_check_is_reported_and_validated(filtered_log: tuple[TwinSpec,
         assert doc["start_check"] == {"options": {"pile_distance": 0.47, "repose_angle": 0.6}, "located_before": 5,
                                       "located_after": after, "replays": 40, "pile_shift": 0.6}
         assert phrase in " ".join(text_report(dataclasses.replace(d, start_check=check), width=400).split())
+
+
+def test_a_cleared_start_check_lists_the_pile_as_an_alternative(filtered_log: tuple[TwinSpec, EpisodeData]) -> None:
+    """A log without seed whose whole-log start leaves nothing located cannot tell what was named from its pile:
+    the pile is listed among every named effect's alternatives (with its evidence) and first among the closest
+    candidates of ``unexplained``, in the schema-valid JSON and in the text; a check that did not clear adds
+    nothing."""
+    twin, ep = filtered_log
+    d = diagnose(ep, twin, options=DiagnoseOptions(budget=20))
+
+    def effects() -> list[ReportedEffect]:
+        return [ReportedEffect("payload_mass_error", None, {"mass_error": 0.1}, {"mass_error": (0.05, 0.15)},
+                               {"pi_mass_error": 0.1}, 0.9, [], 0.8),
+                ReportedEffect(UNEXPLAINED, "F21", {}, {}, {}, None, ["soil_cohesion"], 0.3)]
+
+    kept = effects()
+    name_the_pile(kept, StartCheck({"repose_angle": 0.6}, 5, 2, 40, 0.6))
+    assert kept == effects()
+    named = effects()
+    check = StartCheck({"pile_distance": 0.47, "repose_angle": 0.6}, 5, 0, 40, 0.6)
+    name_the_pile(named, check)
+    name_the_pile(named, check)  # idempotent
+    assert named[0].alternatives == [PILE_ALTERNATIVE] and [a.label for a in named[0].separated_by] == ["pile"]
+    assert named[1].confounded_with == [PILE_ALTERNATIVE, "soil_cohesion"] and named[1].alternatives == []
+    shown = dataclasses.replace(d, effects=named, start_check=check)
+    doc = to_json(shown)  # validated against the schema
+    assert doc["effects"][0]["alternatives"] == ["pile"]
+    assert doc["effects"][0]["separated_by"][0]["channel"] == ""
+    text = " ".join(text_report(shown, width=400).split())
+    assert "cannot be told apart from: pile" in text and "does not pin its pile down" in text
