@@ -13,6 +13,10 @@ and traction (:mod:`scaletwin_envs.design_space`). This module turns such a line
   ``F21_linkage`` = tilt_ratio · |Pf_tilt| (N), the pin force of the massless linkage, which normalises F21 in
   the output group :data:`PI1_LINKAGE` (the ML then learns only what the statics leave out: link weights,
   inertia, end stops);
+* :func:`on_branch`: whether a row's recorded bucket pitch follows from its recorded boom angle and tilt-cylinder
+  length on the design's assembly branch (``pitch_gap``, from :func:`add_design_signals`). Where it does not, the
+  simulated linkage has left its branch (a simulator artefact: the Z-bar flipped over under a rack-back at relief)
+  and the statics the design signals rest on do not hold: such rows are neither trained on, matched nor judged;
 * :func:`match_rows`: for each target row the source row of the same kind (dig or hold) nearest in pose and fill:
   δ1 between matched rows measures the machines' difference, not the difference between two moments of a cycle;
 * :func:`training_pairs`: every row of every machine as a target, with matched rows of other machines as sources,
@@ -33,7 +37,7 @@ import pandas as pd
 from scipy.spatial import cKDTree
 
 from scaletwin_envs.design_space import DesignSpace, ProductLineMachine
-from scaletwin_envs.physics.kinematics import LinkageUnreachable, tilt_ratio
+from scaletwin_envs.physics.kinematics import LinkageUnreachable, bucket_angle_for_tilt_length, tilt_ratio
 from scaletwin_envs.specs.loader import LoaderSpec, make_loader
 from scaling.data.delta_dataset import DeltaDataset, concat_datasets
 from scaling.data.recordings import SOILS, DatasetSpec
@@ -48,6 +52,12 @@ LINKAGE_GROUPS: tuple[PiGroup, ...] = tuple(PiGroup({v: Fraction(1)}, name=v)
 MATCH_KEYS: tuple[str, ...] = ("boom_angle", "bucket_pitch", "fill")
 #: Fill is weighted so that 10 % of rated load counts as much as 0.1 rad of pose.
 MATCH_WEIGHTS: tuple[float, ...] = (1.0, 1.0, 1.0)
+#: Largest ``pitch_gap`` (rad) of a row on the design's assembly branch. Measured on the 53 machines of the
+#: leave-machine-out layout (125,040 rows, design seeds 0 and 1): on 50 machines the gap is the linkage's compliance
+#: under load (a machine's 99th percentile 0.010–0.052 rad, its largest 0.011–0.133 rad); on four hold episodes of
+#: ``pl0-14``, ``pl0-24`` and ``pl0-25``, whose Z-bar flipped over in the final rack-back at relief, 0.9–1.9 rad on
+#: 404 rows (none between 0.3 and 0.9 rad).
+BRANCH_TOLERANCE = 0.3
 
 
 @dataclass(frozen=True)
@@ -105,7 +115,9 @@ class ProductLine:
 
 def add_design_signals(frame: pd.DataFrame, specs: Mapping[str, LoaderSpec]) -> pd.DataFrame:
     """``frame`` with the design signals (:data:`~scaletwin_envs.signal_units.DESIGN_SIGNAL_UNITS`) computed from
-    each row's machine spec and pose.
+    each row's machine spec and pose, and ``pitch_gap`` (rad): |the recorded bucket pitch − the pitch the design's
+    linkage gives at the recorded boom angle and tilt-cylinder length| (NaN where it cannot be assembled there),
+    which :func:`on_branch` reads.
 
     Args:
         frame: rows with ``machine``, ``boom_angle``, ``bucket_pitch`` (rad), ``lift_extension``,
@@ -122,11 +134,13 @@ def add_design_signals(frame: pd.DataFrame, specs: Mapping[str, LoaderSpec]) -> 
     if unknown := sorted(set(labels) - set(specs)):
         raise KeyError(f"no machine spec for {unknown}; pass specs for every machine of the frame")
     out = frame.copy()
-    ratio = np.full(len(frame), np.nan)
+    ratio, gap = np.full(len(frame), np.nan), np.full(len(frame), np.nan)
     for name, idx in labels.groupby(labels).indices.items():
         spec = specs[name]
         boom, pitch = frame["boom_angle"].to_numpy(float)[idx], frame["bucket_pitch"].to_numpy(float)[idx]
         ratio[idx] = [_ratio(spec, b, p) for b, p in zip(boom, pitch, strict=True)]
+        length = spec.tilt.closed_length + frame["tilt_extension"].to_numpy(float)[idx]
+        gap[idx] = [_pitch_gap(spec, b, p, n) for b, p, n in zip(boom, pitch, length, strict=True)]
     per_machine = {n: (s.lift.stroke, s.tilt.stroke, s.rated_load, s.tilt.max_extend_force, s.tilt.max_retract_force)
                    for n, s in specs.items()}
     lift_s, tilt_s, rated, push, pull = (labels.map({n: v[i] for n, v in per_machine.items()}).to_numpy(float)
@@ -136,6 +150,7 @@ def add_design_signals(frame: pd.DataFrame, specs: Mapping[str, LoaderSpec]) -> 
     out["lift_stroke"] = frame["lift_extension"].to_numpy(float) / lift_s
     out["fill"] = frame["m_load"].to_numpy(float) / rated
     out["F21_linkage"] = ratio * np.abs(frame["Pf_tilt"].to_numpy(float))
+    out["pitch_gap"] = gap
     tilt = frame["Pf_tilt"].to_numpy(float)  # the loaded chamber's pressure over relief: piston side when pushing
     out["tilt_load"] = np.where(tilt >= 0, tilt / push, -tilt / pull)
     return out
@@ -146,6 +161,32 @@ def _ratio(spec: LoaderSpec, boom: float, pitch: float) -> float:
         return tilt_ratio(spec.geometry, float(boom), float(pitch))
     except LinkageUnreachable:
         return float("nan")
+
+
+def _pitch_gap(spec: LoaderSpec, boom: float, pitch: float, tilt_length: float) -> float:
+    """|pitch − the bucket pitch the design's linkage gives at ``boom`` (rad) and ``tilt_length`` (m, pin to pin)|,
+    wrapped to [0, π] (rad); NaN where the linkage cannot close there."""
+    try:
+        bucket = bucket_angle_for_tilt_length(spec.geometry, float(boom), float(tilt_length))
+    except LinkageUnreachable:
+        return float("nan")
+    return abs(float((pitch - boom - bucket + np.pi) % (2 * np.pi) - np.pi))
+
+
+def on_branch(frame: pd.DataFrame, tolerance: float = BRANCH_TOLERANCE) -> np.ndarray:
+    """Mask of the rows whose recorded bucket pitch the design's linkage gives at the recorded boom angle and
+    tilt-cylinder length: ``pitch_gap`` (rad) at most ``tolerance`` (rad). Rows without the column (no design
+    signals) and rows where the linkage cannot close at the recorded lengths (gap NaN: link B near straight under
+    load, 908 rows at 69–87 % of the tilt stroke on the layout's machines) count as on the branch.
+
+    Off the branch the simulated Z-bar has flipped over a dead centre (seen in hold episodes' final rack-back at
+    relief, with the tilt cylinder then on its end stop): the pose the bucket pitch says is not one the cylinder
+    lengths give, the linkage statics at that pose (``tilt_ratio``, ``F21_linkage``) describe another mechanism,
+    and π1 = F21 / F21_linkage falls to 0.06 (``pl0-24``: predicted F21 430 times the simulated one).
+    """
+    if "pitch_gap" not in frame.columns:
+        return np.ones(len(frame), dtype=bool)
+    return ~(frame["pitch_gap"].to_numpy(float) > tolerance)
 
 
 def match_rows(source: pd.DataFrame, target: pd.DataFrame, keys: Sequence[str] = MATCH_KEYS,

@@ -15,8 +15,10 @@ that are not the target's cancel in part). Beside
 every model stand baselines: direct Buckingham-Pi (δ1 ≡ 1) with matched rows of the ER12 and of the nearest
 training machine, and the linkage statics F21 ≈ tilt_ratio · |Pf_tilt| (design and pose only, no learning).
 
-Rows judged: after the start-up settling (:func:`scaling.evaluation.metrics.after_settling`) and with F21 above 5 % of
-the machine's peak (relative errors on a vanishing force mean nothing); *static* rows (inertial groups below
+Rows judged: after the start-up settling (:func:`scaling.evaluation.metrics.after_settling`), with F21 above 5 % of
+the machine's peak (relative errors on a vanishing force mean nothing) and the simulated linkage on its assembly
+branch (:func:`scaling.data.product_line.on_branch`; off it, in a few hold episodes' final rack-back, the recorded
+pose is not one the cylinder lengths give and its statics are another mechanism's); *static* rows (inertial groups below
 0.1 % of F31, :func:`scaling.evaluation.metrics.at_rest`: the loaded bucket held still) and *dynamic* rows (the rest:
 the dig cycles and the moves between holds) apart.
 """
@@ -43,6 +45,7 @@ from scaling.data.product_line import (
     design_descriptor,
     matched_pairs,
     nearest_machines,
+    on_branch,
     training_pairs,
 )
 from scaling.data.recordings import SOILS, load_or_generate
@@ -228,9 +231,10 @@ class GeneralisationResult:
 
 
 def judged_rows(frame: pd.DataFrame) -> np.ndarray:
-    """Mask of rows judged (module docstring)."""
+    """Mask of rows judged (module docstring), rows whose simulated linkage left its assembly branch
+    (:func:`~scaling.data.product_line.on_branch`) left out."""
     peak = frame.groupby("machine")["F21"].transform("max").to_numpy(float)
-    return after_settling(frame) & (frame["F21"].to_numpy(float) > PEAK_FRACTION * peak)
+    return after_settling(frame) & (frame["F21"].to_numpy(float) > PEAK_FRACTION * peak) & on_branch(frame)
 
 
 def finite_groups(frame: pd.DataFrame, groups: Sequence[PiGroup]) -> np.ndarray:
@@ -242,8 +246,9 @@ def finite_groups(frame: pd.DataFrame, groups: Sequence[PiGroup]) -> np.ndarray:
 
 
 def training_rows(frame: pd.DataFrame, groups: Sequence[PiGroup]) -> pd.DataFrame:
-    """Rows fit for training: settled, inside the scaling domain (π1 ≥ 0.1), every group finite."""
-    ok = after_settling(frame) & in_domain(frame) & finite_groups(frame, groups)
+    """Rows fit for training: settled, inside the scaling domain (π1 ≥ 0.1), every group finite, the linkage on its
+    assembly branch (:func:`~scaling.data.product_line.on_branch`)."""
+    ok = after_settling(frame) & in_domain(frame) & finite_groups(frame, groups) & on_branch(frame)
     return frame[ok].reset_index(drop=True)
 
 
@@ -348,6 +353,8 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
 
     judged = {m: by_machine[m][judged_rows(by_machine[m])].reset_index(drop=True)
               for m in (*split.calibration, *split.test)}
+    # a source row off its linkage's branch is no state of the design: never matched
+    source_rows = {m: g[on_branch(g)].reset_index(drop=True) for m, g in by_machine.items()}
     extrap = ExtrapolationScore().fit(np.array([design_descriptor(split.specs[m]) for m in split.train]))
     extrap.calibrate(np.array([design_descriptor(split.specs[m]) for m in split.calibration]))
     machine_score = {m: float(extrap.score(design_descriptor(split.specs[m]))[0])
@@ -358,7 +365,7 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
 
     def predict(name: str, target: str) -> _Predicted:
         tgt = judged[target]
-        per_source = [matched_pairs(by_machine[s], tgt, output_of[name], groups_of[name])
+        per_source = [matched_pairs(source_rows[s], tgt, output_of[name], groups_of[name])
                       for s in sources(name, target)]
         pairs, log_pred, scale, pred = combine_sources(models[name], per_source)
         f21 = pairs.target_values()

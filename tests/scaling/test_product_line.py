@@ -24,6 +24,7 @@ from scaling.data.product_line import (
     match_rows,
     matched_pairs,
     nearest_machine,
+    on_branch,
     training_pairs,
 )
 from scaling.data.recordings import generate_frame
@@ -243,6 +244,38 @@ def test_every_machine_keeps_its_linkage_on_its_branch(line_frame: pd.DataFrame)
     worst = rest["pitch_gap"].abs().fillna(np.inf).groupby(rest["machine"]).max()
     assert set(worst.index) == {m.name for m in LINE.machines}
     assert (worst < 0.1).all(), worst.to_dict()
+
+
+def test_rows_whose_linkage_left_its_branch_are_neither_judged_nor_trained_on() -> None:
+    """The calibration machine pl0-24's 161 % mean dig-row error came from one hold episode whose simulated Z-bar
+    flipped over in the final rack-back at relief: the recorded bucket pitch lay 0.9–1.7 rad from the pitch its
+    boom angle and tilt-cylinder length give, π1 = F21 / F21_linkage fell to 0.06 and F21 was predicted 430 times
+    too large. add_design_signals measures that gap (``pitch_gap``, rad), and such rows are not judged, not
+    trained on (nor matched as sources, in ``evaluate``); rows on the branch stay, whatever their stroke."""
+    from scaling.evaluation.generalisation import judged_rows, training_rows
+
+    spec = make_loader("er12")
+    g = spec.geometry
+    lift = spec.lift.closed_length + 0.5 * spec.lift.stroke
+    tilt = spec.tilt.closed_length + np.linspace(0.2, 0.6, 30) * spec.tilt.stroke
+    poses = [pose_from_cylinders(g, lift, t) for t in tilt]
+    frame = pd.DataFrame({"machine": "er12", "episode": 0, "kind": "hold", "t": 0.1 * np.arange(30),
+                          "boom_angle": [p.boom for p in poses], "bucket_pitch": [p.bucket_pitch for p in poses],
+                          "lift_extension": lift - spec.lift.closed_length,
+                          "tilt_extension": tilt - spec.tilt.closed_length, "m_load": 0.5 * spec.rated_load,
+                          "Pf_tilt": 5e4, "F21": 6e4, "F31": 8e4})
+    flipped = 25
+    frame.loc[flipped, "bucket_pitch"] += 1.7  # the pose a flipped Z-bar records at the same cylinder lengths
+    out = add_design_signals(frame, {"er12": spec})
+    gap = out["pitch_gap"].to_numpy(float)
+    assert np.all(np.delete(gap, flipped) < 1e-9)
+    assert gap[flipped] == pytest.approx(1.7, abs=1e-9)
+    np.testing.assert_array_equal(on_branch(out), np.arange(30) != flipped)
+    assert on_branch(frame).all()  # no design signals: nothing to judge a row by
+    judged = judged_rows(out)
+    assert not judged[flipped] and judged[10:].sum() == 19  # the first 10 rows settle
+    kept = training_rows(out, ())
+    assert len(kept) == 19 and flipped * 0.1 not in set(np.round(kept["t"], 9))
 
 
 def test_training_pairs_take_sources_from_other_machines(line_frame: pd.DataFrame) -> None:
