@@ -15,9 +15,11 @@ from __future__ import annotations
 import os
 import sys
 
+from scaletwin_envs.gl import offscreen_gl
+
 if ("MUJOCO_GL" not in os.environ and sys.platform.startswith("linux") and not os.environ.get("DISPLAY")
-        and not os.environ.get("WAYLAND_DISPLAY")):
-    os.environ["MUJOCO_GL"] = "egl"  # headless rendering; must be set before MuJoCo creates a GL context
+        and not os.environ.get("WAYLAND_DISPLAY") and (_backend := offscreen_gl())):
+    os.environ["MUJOCO_GL"] = _backend  # headless rendering; must be set before MuJoCo creates a GL context
 
 import gymnasium as gym
 

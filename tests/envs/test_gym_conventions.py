@@ -16,6 +16,7 @@ from gymnasium.wrappers import TimeLimit
 import scaletwin_envs
 from scaletwin_envs.envs.loader_base import EpisodeFinishedError, display_available
 from scaletwin_envs.envs.wheel_loader_dig import INFO_KEYS, REWARD_TERMS, WheelLoaderDigEnv, horizon_steps
+from scaletwin_envs.gl import offscreen_gl
 from scaletwin_envs.policies.domain import RandomizedDigEnv
 
 HOLD = np.zeros(3, dtype=np.float32)
@@ -254,3 +255,17 @@ def test_law_with_a_fixed_machine_is_rejected() -> None:
         assert gym.make(scaletwin_envs.ENV_ID, scale=scale, law="product_line").unwrapped.loader.name  # the default
     froude = gym.make(scaletwin_envs.ENV_ID, scale=0.5, law="froude").unwrapped.loader
     assert froude.operating_mass != spec.operating_mass  # and with a length ratio the law is used
+
+
+def test_the_offscreen_back_end_is_one_whose_library_is_there() -> None:
+    """Without a display the package names an off-screen GL back end for MuJoCo only where its library exists:
+    MuJoCo 4 loads it at import, so ``MUJOCO_GL=egl`` on a machine without libEGL made ``import mujoco`` fail
+    (seen on a bare GPU container). EGL first, then OSMesa, else none (MuJoCo's default)."""
+    assert offscreen_gl(lambda name: f"lib{name}.so.1") == "egl"
+    assert offscreen_gl(lambda name: "libOSMesa.so.8" if name == "OSMesa" else None) == "osmesa"
+    assert offscreen_gl(lambda name: None) is None
+    environ = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY", "MUJOCO_GL")}
+    code = "import os, scaletwin_envs; print(os.environ.get('MUJOCO_GL'))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=environ, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip() == str(offscreen_gl())
