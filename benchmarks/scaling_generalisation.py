@@ -26,7 +26,9 @@ import json
 import os
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -36,8 +38,10 @@ from scaletwin_envs.host import host_line
 from scaling.data.product_line import LINKAGE_GROUPS, PI1_LINKAGE, relief_share
 from scaling.data.recordings import dataset_hash
 from scaling.dimensions.group_choice import POSE_GROUPS
+from scaling.evaluation.conformal import RowRisk
 from scaling.evaluation.generalisation import (
     PRODUCT_LINE_NET,
+    WARN_VARIANTS,
     Candidate,
     LeaveMachineOut,
     cross_fit_served,
@@ -51,6 +55,25 @@ from scaling.runs.provenance import code_version, versions
 #: interval and error score are also judged on the calibration machines, each left out in turn.
 SERVED = ("ffnn-statics (pairs, π1 = F21/F21_linkage)", "ensemble-statics (pairs, π1 = F21/F21_linkage)",
           "ensemble-statics, 3 nearest sources")
+#: The served risk's features tried beside the served ones (label → the extra column from a calibration row, put
+#: before the ensemble's spread), judged on the calibration machines each left out in turn: the matched source
+#: row's conditioning (π1 = F21 / F21_linkage is ill-conditioned where its tilt load is near zero). Not served.
+RISK_CANDIDATES: dict[str, Callable[[pd.DataFrame], np.ndarray]] = {
+    "+ ln tilt load of the source row": lambda r: np.log(np.maximum(np.abs(r["source_tilt_load"].to_numpy(float)),
+                                                                    RowRisk.TILT_LOAD_FLOOR)),
+    "+ |ln π1| of the source row": lambda r: np.abs(np.log(r["source_pi1"].to_numpy(float))),
+}
+
+
+def risk_candidates(rows: pd.DataFrame) -> dict[str, dict[str, Any]]:
+    """:meth:`CrossFit.summary <scaling.evaluation.generalisation.CrossFit.summary>` of the served risk's features
+    and of each of :data:`RISK_CANDIDATES` added to them, on the calibration rows ``rows`` left out in turn."""
+    served = [f"served_{k}" for k in range(len(RowRisk.FEATURES))]
+    out = {"served": cross_fit_served(rows, features=served).summary()}
+    for label, column in RISK_CANDIDATES.items():
+        extra = rows.assign(candidate=column(rows))
+        out[label] = cross_fit_served(extra, features=[*served[:-1], "candidate", served[-1]]).summary()
+    return out
 
 
 def main() -> None:
@@ -104,6 +127,8 @@ def main() -> None:
     result = evaluate(frame, split, candidates, progress=print)
     cross_fit = {name: cross_fit_served(rows).summary() for name, rows in result.calibration_rows.items()
                  if name in SERVED}
+    candidates_cf = {name: risk_candidates(rows) for name, rows in result.calibration_rows.items()
+                     if name in (*SERVED, "ffnn-statics, 3 nearest sources")}
     load.append(os.getloadavg()[0])
     table = result.frame()
     out = Path(args.out)
@@ -115,7 +140,7 @@ def main() -> None:
             "groups": {"eq10": [g.expression() for g in eq10], "linkage": [g.expression() for g in linkage]},
             "data_hash": dataset_hash(frame.drop(columns=["episode_key"])), "fit_seconds": result.fit_seconds,
             "extrapolation": result.extrapolation, "quick": args.quick, "test_seed": args.test_seed,
-            "cross_fit": cross_fit,
+            "cross_fit": cross_fit, "risk_candidates": candidates_cf,
             "relief_share": relief_share(frame, split.specs).round(3).to_dict()}
     out.with_suffix(".json").write_text(json.dumps(meta, indent=1, default=str))
     text = report(pd.read_csv(out.with_suffix(".csv")), meta)  # from the file, so that --render gives the same
@@ -153,6 +178,28 @@ def cross_fit_lines(cross_fit: dict[str, dict]) -> list[str]:
     return [*lines, ""]
 
 
+def candidate_lines(tried: dict[str, dict[str, dict]]) -> list[str]:
+    """The Markdown table of the served risk's candidate features (:data:`RISK_CANDIDATES`) on the calibration
+    machines, each left out in turn (empty for results written before it existed)."""
+    if not tried:
+        return []
+    warn = next(iter(WARN_VARIANTS))
+    lines = ["### Served risk: features tried", "",
+             "The served risk's features and each candidate added to them (the matched source row's conditioning; "
+             "not served), fitted on the other calibration machines and judged on the one left out, with the "
+             "served warning threshold.", "",
+             "| model | risk features | AUROC, rows > 3 / 5 / 10 % off | rows warned on, median / max | "
+             "machines above 5 % |", "|---|---|---|---|---|"]
+    for name, by_label in tried.items():
+        for label, cf in by_label.items():
+            w = cf["warned"][warn]
+            auc = " / ".join(f"{v:.3f}" for v in cf["auroc"].values())
+            cell = label.replace("|", "\\|")  # a Markdown cell may not hold a bare pipe
+            lines.append(f"| {name} | {cell} | {auc} | {100 * w['median']:.2f} % / {100 * w['max']:.2f} % | "
+                         f"{w['above_5pct']} |")
+    return [*lines, ""]
+
+
 def report(table: pd.DataFrame, meta: dict) -> str:
     """The Markdown results: summary per model over the drawn test machines, then every machine."""
     drawn = table[~table["machine"].isin(["mini", "wa475"])]
@@ -179,6 +226,7 @@ def report(table: pd.DataFrame, meta: dict) -> str:
         "90 % of the rows of the median calibration machine "
         "(`scaling.evaluation.conformal.machine_level_quantile`; chosen on the calibration machines, below).", "",
         *cross_fit_lines(meta.get("cross_fit", {})),
+        *candidate_lines(meta.get("risk_candidates", {})),
         "## Over the drawn test machines", "",
         "| model | dynamic rows: MAPE median / worst [%] | static rows: MAPE median / worst [%] | "
         "peak F21 error median [%] | "

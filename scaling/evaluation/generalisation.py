@@ -43,6 +43,7 @@ from scaling.data.product_line import (
     ProductLine,
     add_design_signals,
     design_descriptor,
+    match_rows,
     matched_pairs,
     nearest_machines,
     on_branch,
@@ -222,7 +223,8 @@ class GeneralisationResult:
     row_risk: dict[str, RowRisk] = field(default_factory=dict)
     row_interval: dict[str, RowInterval] = field(default_factory=dict)
     #: per model, every calibration row: ``machine``, ``residual`` (ln δ1 actual − predicted), ``error`` (relative
-    #: F21 error) and the served features (:attr:`RowRisk.FEATURES <scaling.evaluation.conformal.RowRisk.FEATURES>`
+    #: F21 error), the first source's matched row's ``source_tilt_load`` (1) and ``source_pi1`` (π1 of the source
+    #: row, 1) and the served features (:attr:`RowRisk.FEATURES <scaling.evaluation.conformal.RowRisk.FEATURES>`
     #: as ``served_0``…); what the intervals are tuned on (leave-machine-out over the calibration machines)
     calibration_rows: dict[str, pd.DataFrame] = field(default_factory=dict)
 
@@ -376,7 +378,10 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
                                     (kind == "static").astype(float)])
         g = None if models[name] is None else models[name].features(pairs)
         tilt_load = tgt["tilt_load"].to_numpy(float)[rows]
-        return _Predicted(pairs, kind, log_pred, scale, pred, f21, _errors(pred, f21), features, tilt_load, g)
+        first = source_rows[sources(name, target)[0]]  # the first source's matched row of every pair
+        source_load = first["tilt_load"].to_numpy(float)[match_rows(first, tgt)][rows]
+        return _Predicted(pairs, kind, log_pred, scale, pred, f21, _errors(pred, f21), features, tilt_load, g,
+                          source_load)
 
     calibrators: dict[str, GroupConformal] = {}
     spread_calibrators: dict[str, GroupConformal] = {}
@@ -413,6 +418,9 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
             calibration_rows[name] = pd.DataFrame({"machine": grp, "residual": residual,
                                                    "error": np.concatenate([c.err for c in cal]),
                                                    "ln_spread": features[:, 0], "ln_design_distance": features[:, 3],
+                                                   "source_tilt_load": np.concatenate([c.source_tilt_load
+                                                                                       for c in cal]),
+                                                   "source_pi1": np.concatenate([c.pairs.pi1_source for c in cal]),
                                                    **{f"served_{k}": served_cal[:, k]
                                                       for k in range(served_cal.shape[1])}})
 
@@ -495,7 +503,8 @@ ERROR_FEATURES = ("ln σ of ln δ1 (ensembles; 0 otherwise)", "ln input novelty"
 class _Predicted:
     """One model's prediction for one machine's judged rows: the pairs, each pair's row kind (:func:`row_kinds`),
     log δ1 and its scale, F21 predicted and actual (N), relative error, the error score's features
-    (:data:`ERROR_FEATURES`), the target's tilt load (1) and the model's feature rows g (None for direct-Pi)."""
+    (:data:`ERROR_FEATURES`), the target's tilt load (1), the model's feature rows g (None for direct-Pi) and the
+    tilt load (1) of the first source's matched row of every pair."""
 
     pairs: DeltaDataset
     kind: np.ndarray
@@ -507,6 +516,8 @@ class _Predicted:
     features: np.ndarray
     tilt_load: np.ndarray
     g: np.ndarray | None = None
+    #: the tilt load (1) of the first source's matched row of every pair
+    source_tilt_load: np.ndarray | None = None
 
 
 def kinds(frame: pd.DataFrame) -> np.ndarray:
@@ -593,19 +604,23 @@ class CrossFit:
                 "rows_over": {str(k): v for k, v in self.rows_over.items()}}
 
 
-def cross_fit_served(rows: pd.DataFrame, *, coverage: float = 0.9, miss: float = MISS) -> CrossFit:
+def cross_fit_served(rows: pd.DataFrame, *, coverage: float = 0.9, miss: float = MISS,
+                     features: Sequence[str] | None = None) -> CrossFit:
     """Leave each calibration machine out in turn: fit the served interval (every :data:`INTERVAL_VARIANTS` bound)
     and the served error score (:class:`RowRisk`'s, thresholds of :data:`WARN_VARIANTS`) on the other machines'
     rows of ``rows`` (:attr:`GeneralisationResult.calibration_rows`) and judge them on the machine left out.
 
     This is where the served interval's bound and the warning threshold were chosen: on machines never trained
     on, without the test machines. Needs at least three calibration machines (the interval's scale is
-    cross-fitted again inside the ones kept)."""
+    cross-fitted again inside the ones kept). ``features``: the columns of ``rows`` the error score reads, the
+    interval's first (default ``served_0``…, the served features :attr:`RowRisk.FEATURES`); a candidate feature is
+    judged here by passing other columns."""
     machines = rows["machine"].astype(str).to_numpy()
     names = np.unique(machines)
     if names.size < 3:
         raise ValueError(f"cross-fitting over calibration machines needs at least three, got {names.size}")
-    x = rows[[f"served_{k}" for k in range(len(RowRisk.FEATURES))]].to_numpy(float)
+    columns = list(features) if features is not None else [f"served_{k}" for k in range(len(RowRisk.FEATURES))]
+    x = rows[columns].to_numpy(float)
     residual, error = rows["residual"].to_numpy(float), rows["error"].to_numpy(float)
     cov: dict[str, dict[str, float]] = {k: {} for k in INTERVAL_VARIANTS}
     warned: dict[str, dict[str, float]] = {k: {} for k in WARN_VARIANTS}

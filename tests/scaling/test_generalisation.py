@@ -14,6 +14,7 @@ from scaling.data.product_line import LINKAGE_GROUPS, PI1_LINKAGE, ProductLine, 
 from scaling.data.recordings import generate_frame
 from scaling.dimensions.group_choice import PI1, POSE_GROUPS
 from scaling.dimensions.groups import PiGroup
+from scaling.evaluation.conformal import RowRisk
 from scaling.evaluation.generalisation import (
     INTERVAL_VARIANTS,
     Candidate,
@@ -179,3 +180,12 @@ def test_served_interval_covers_what_it_claims_on_calibration_machines_left_out(
     assert summary["coverage"][served]["machines"] == 7
     with pytest.raises(ValueError, match="at least three"):
         cross_fit_served(rows[rows["machine"].isin(split.calibration[:2])])
+    # a candidate feature of the risk is judged the same way: the first source's matched row rides along
+    assert (rows["source_pi1"] > 0).all() and (rows["source_tilt_load"] >= 0).all()
+    served_cols = [f"served_{k}" for k in range(len(RowRisk.FEATURES))]
+    same = cross_fit_served(rows, features=served_cols)
+    pd.testing.assert_frame_equal(same.warned, ninety.warned)
+    np.testing.assert_equal(same.auroc, ninety.auroc)
+    extra = rows.assign(candidate=np.abs(np.log(rows["source_pi1"])))
+    tried = cross_fit_served(extra, features=[*served_cols[:-1], "candidate", served_cols[-1]])
+    assert list(tried.coverage.index) == sorted(split.calibration)
