@@ -10,6 +10,15 @@ Sensor noise
     C(2d, d)·σ_w², those of the AR(1) part ``σ_c² f_d(ρ)``; white and random-walk-like noise differ in the ratios
     of these variances (3 and 2 for the 2nd over the 1st).
 
+Colour undecided
+    A dig cycle is short (50–300 control steps), and on so few samples the differences often cannot tell moderate
+    AR(1) noise from white (:data:`COLOUR_EVIDENCE` is not reached). Calling such a channel white with the variance
+    its differences show under-states coloured noise (AR(1) ρ 0.74: the white fit of the differences is 0.6 of
+    its SD) and the null then flags what is only noise. So an undecided channel is white with the largest marginal
+    variance of the models the spectrum cannot rule out (:data:`PLAUSIBLE` log-likelihood of the best, ρ up to
+    :data:`UNDECIDED_RHO_MAX`): honest if the noise is coloured, a few per cent wider if it is white. The drift
+    tests see the channel's own fit; a drift found models the slow part instead of the widening.
+
 Drift
     A 32-step spectral segment cannot see a slow random walk (a load pin's zero creeping, an inclinometer's
     temperature drift), yet over the record its level wanders far beyond the white noise and reads as a bias. So
@@ -61,6 +70,11 @@ QUIET_EVIDENCE = 3.0  # ... and at least this much in the quieter half of the re
 SEGMENT = 32  # control steps per spectral segment (3.2 s at ER12: several per dig phase)
 TAPER = 0.2  # fraction of the record in the cosine tapers at its ends
 COLOUR_EVIDENCE = 10.0  # log-likelihood gain needed to call a channel coloured (white noise exceeds it 1 in 20 000)
+#: Colour undecided: models whose (weighted) Whittle log-likelihood is within this of the best are not ruled out
+#: (a one-parameter likelihood-ratio set of about 95 %: χ²₁(0.95) / 2 = 1.92) ...
+PLAUSIBLE = 2.0
+#: ... up to this ρ (beyond it an AR(1) part is drift on a dig cycle's length, which :func:`estimate_drift` fits).
+UNDECIDED_RHO_MAX = 0.9
 CONVERGED = 1e-9  # relative change of the Kalman gain below which the filter is in steady state
 #: Drift rates searched, as random-walk increment variance per step relative to the short-scale noise variance:
 #: from 1e-5 (a walk that wanders about one noise SD over 100 000 steps, far below what a record shows) to 0.3
@@ -114,6 +128,16 @@ class ChannelNoise:
     rho: float = 0.0
     coloured: float = 0.0
     drift: float = 0.0
+    #: colour undecided (:func:`short_scale`): the white SD the channel takes unless a drift explains its slow part
+    #: (0: decided)
+    undecided: float = 0.0
+
+    def settled(self) -> ChannelNoise:
+        """The channel as the null and the whitening use it: an undecided channel without drift is white with its
+        ``undecided`` SD (see the module); a drift found models the slow part instead."""
+        if self.undecided > self.white and self.drift == 0.0 and self.coloured == 0.0:
+            return dataclasses.replace(self, white=self.undecided, undecided=0.0)
+        return dataclasses.replace(self, undecided=0.0) if self.undecided else self
 
     @property
     def sd(self) -> float:
@@ -203,6 +227,11 @@ def estimate_channel(residual: np.ndarray, floor: float) -> ChannelNoise:
         residual: (steps,) real minus twin, signal units.
         floor: smallest white SD accepted (signal units).
     """
+    return _unsettled(residual, floor).settled()
+
+
+def _unsettled(residual: np.ndarray, floor: float) -> ChannelNoise:
+    """:func:`estimate_channel` before an undecided channel is settled (what the common-drift test sees)."""
     short = short_scale(residual, floor)
     drift, _ = estimate_drift(residual, short)
     return dataclasses.replace(short, drift=drift) if drift > 0.0 else short
@@ -211,7 +240,9 @@ def estimate_channel(residual: np.ndarray, floor: float) -> ChannelNoise:
 def short_scale(residual: np.ndarray, floor: float) -> ChannelNoise:
     """(ρ, σ_c, σ_w) of one channel: a Whittle fit of AR(1) + white to the median-Welch spectrum of the residual's
     first differences, clipped at :data:`TRIM` robust deviations (see the module). The coloured part is kept only
-    when it raises the likelihood beyond :data:`COLOUR_EVIDENCE` over white alone.
+    when it raises the likelihood beyond :data:`COLOUR_EVIDENCE` over white alone; otherwise the channel is white,
+    its fit kept for the drift tests and the largest marginal SD the spectrum does not rule out recorded
+    (``undecided``, :func:`_undecided_sd`; :meth:`ChannelNoise.settled` applies it).
 
     Args:
         residual: (steps,) real minus twin, signal units.
@@ -227,17 +258,29 @@ def short_scale(residual: np.ndarray, floor: float) -> ChannelNoise:
     white = max(float(np.sqrt(white_w2[0] + white_e2[0])), floor)
     loglik, w2, e2 = _whittle_fit(spectrum, omega, RHO_GRID)
     best = int(np.argmax(loglik))
+    undecided = ChannelNoise(white, undecided=_undecided_sd(white, weight, float(white_ll[0]), loglik, w2, e2, floor))
     if weight * float(loglik[best] - white_ll[0]) < COLOUR_EVIDENCE or e2[best] <= 0.0:
-        return ChannelNoise(white)
+        return undecided
     # stationary noise is coloured in the quiet segments too; a discrepancy that lasts through most of the record
     # (a load's offset) colours the median but not the segments before it acts
     quiet_white, _, _ = _whittle_fit(quiet, omega, np.array([0.0]))
     quiet_ll, _, _ = _whittle_fit(quiet, omega, RHO_GRID)
     if quiet_weight * float(np.max(quiet_ll) - quiet_white[0]) < QUIET_EVIDENCE:
-        return ChannelNoise(white)
+        return undecided
     rho = float(RHO_GRID[best])
     coloured = float(np.sqrt(e2[best] / (1.0 - rho**2)))
     return ChannelNoise(max(float(np.sqrt(w2[best])), floor), rho, coloured)
+
+
+def _undecided_sd(white: float, weight: float, white_ll: float, loglik: np.ndarray, w2: np.ndarray, e2: np.ndarray,
+                  floor: float) -> float:
+    """White SD of a channel whose colour is undecided (see the module): the largest marginal SD (white and AR(1)
+    parts) of the models within :data:`PLAUSIBLE` of the best (ρ ≤ :data:`UNDECIDED_RHO_MAX`), at least ``white``
+    (the all-white fit) and ``floor``."""
+    top = max(float(np.max(loglik)), white_ll)
+    plausible = (weight * (loglik - top) >= -PLAUSIBLE) & (RHO_GRID <= UNDECIDED_RHO_MAX)
+    marginal = w2 + e2 / (1.0 - RHO_GRID**2)
+    return max(white, floor, float(np.sqrt(np.max(marginal[plausible], initial=0.0))))
 
 
 def level_loglik(x: np.ndarray, short: ChannelNoise, q: np.ndarray, zeroed: bool = False) -> np.ndarray:
@@ -387,15 +430,15 @@ def sensor_noise(residual: np.ndarray, spread: np.ndarray, twin: np.ndarray | No
     residual before that removal (:func:`common_drift`: the twin's slow signals absorb a slow walk)."""
     raw = residual
     if twin is None:
-        channels = [estimate_channel(residual[:, j], NOISE_FLOOR * float(spread[j])) for j in range(residual.shape[1])]
-        return common_drift(raw, channels)
+        channels = [_unsettled(residual[:, j], NOISE_FLOOR * float(spread[j])) for j in range(residual.shape[1])]
+        return [c.settled() for c in common_drift(raw, channels)]
     residual = _unexplained_by(residual, twin)
     channels = []
     for j in range(residual.shape[1]):
         short = short_scale(residual[:, j], NOISE_FLOOR * float(spread[j]))
         drift, _ = estimate_drift(raw[:, j], short, np.nan_to_num(twin[:, j]))
         channels.append(dataclasses.replace(short, drift=drift) if drift > 0.0 else short)
-    return common_drift(raw, channels)
+    return [c.settled() for c in common_drift(raw, channels)]
 
 
 def drift_gains(residual: np.ndarray, shorts: list[ChannelNoise]) -> np.ndarray:

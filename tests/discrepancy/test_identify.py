@@ -61,8 +61,9 @@ RECOVERY = 0.05
 #: interval spanned most of the catalogue's bounds.
 WIDEST = 0.3
 #: ... wider for the payload COM: its vertical offset shows on the load's height, a channel the noise model calls
-#: drift-like under this offset (see FINAL_FIT), which honestly widens its interval (observed ±20 %).
-WIDEST_FOR = {"payload_com_offset": 0.5}
+#: drift-like under this offset (see FINAL_FIT), which honestly widens its interval (observed ±20 %; ±28 % since a
+#: channel whose colour the record leaves undecided is widened to the largest SD its spectrum allows).
+WIDEST_FOR = {"payload_com_offset": 0.6}
 
 
 @pytest.mark.parametrize("name", list(CLEAR))

@@ -41,11 +41,25 @@ def test_a_known_ar1_is_recovered(rho: float) -> None:
 
 
 def test_white_noise_is_white_even_beside_a_slow_discrepancy() -> None:
+    """The slow discrepancy does not colour the channel; an undecided channel is widened to the largest SD the
+    spectrum does not rule out (``PLAUSIBLE``), here by about 13 % (1.06 before that rule): the price of not
+    under-stating short coloured records, bounded at 20 %."""
     t = np.linspace(0.0, 1.0, STEPS)
     slow = 5.0 * t**2 + 2.0 * ((t > 0.5) & (t < 0.6))  # a drift-like ramp and a step, 5 noise SDs
     fits = [estimate_channel(np.random.default_rng(k).standard_normal(STEPS) + slow, 1e-9) for k in range(20)]
     assert sum(f.coloured > 0 for f in fits) <= 2, [f.rho for f in fits]
-    assert abs(np.median([f.white for f in fits]) - 1.0) <= 0.1
+    assert 0.95 <= np.median([f.white for f in fits]) <= 1.2
+
+
+@pytest.mark.parametrize("rho, steps, low", [(0.6, 60, 0.87), (0.74, 50, 0.78)])
+def test_short_coloured_noise_is_not_understated(rho: float, steps: int, low: float) -> None:
+    """On a short record the differences often cannot tell AR(1) noise from white; a channel left undecided must not
+    be given much less noise than it has (its marginal SD is 1 here): of 200 records, those not given a drift (which
+    models the slow part instead) have an estimated marginal SD of at least ``low`` in 9 of 10. Calling such a
+    channel white with the variance of its differences gave 0.83 and 0.76 (this rule 0.91 and 0.80)."""
+    fits = [estimate_channel(_ar1(np.random.default_rng(500 + k), rho, 1.0, steps), 1e-9) for k in range(200)]
+    sd = [f.sd for f in fits if f.drift == 0.0]
+    assert np.percentile(sd, 10) >= low, sorted(round(x, 3) for x in sd)[:20]
 
 
 def test_whitening_makes_coloured_noise_white_and_leaves_white_noise_alone() -> None:
@@ -85,10 +99,11 @@ def _coloured(clean, rho: float, frac: float, seed: int):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("rho", [0.6, pytest.param(0.9, marks=pytest.mark.xfail(
-    strict=True, reason="known (issue 14): on a 99-step ER12 cycle the colour evidence of lift_speed is 9.0, under "
-                        "COLOUR_EVIDENCE; it is called white and a gain on it is named"))])
+@pytest.mark.parametrize("rho", [0.6, 0.9])
 def test_a_perfect_twin_under_coloured_noise_is_not_called_wrong(twin: TwinSpec, rho: float) -> None:
+    """A perfect ER12 twin under AR(1) noise (1 % of range) names nothing. At ρ 0.9 on this 99-step cycle the colour
+    evidence of ``lift_speed`` is 9.0, under ``COLOUR_EVIDENCE``: called white with the variance of its differences
+    it had a gain named; as an undecided channel, widened to what the spectrum does not rule out, it is quiet."""
     clean = record(twin, [], 0.0, twin.seed).clean
     d = diagnose(_coloured(clean, rho, 0.01, 5), twin, options=DiagnoseOptions())
     assert not d.effects, [(e.effect, e.target) for e in d.effects]
