@@ -230,10 +230,13 @@ def estimate_channel(residual: np.ndarray, floor: float) -> ChannelNoise:
     return _unsettled(residual, floor).settled()
 
 
-def _unsettled(residual: np.ndarray, floor: float) -> ChannelNoise:
-    """:func:`estimate_channel` before an undecided channel is settled (what the common-drift test sees)."""
+def _unsettled(residual: np.ndarray, floor: float, raw: np.ndarray | None = None,
+               twin: np.ndarray | None = None) -> ChannelNoise:
+    """:func:`estimate_channel` before an undecided channel is settled (what the common-drift test sees): the short
+    scale of ``residual``, the drift of ``raw`` (default ``residual``) with the twin's signal ``twin`` (steps,) as
+    free regressors where given (:func:`estimate_drift`)."""
     short = short_scale(residual, floor)
-    drift, _ = estimate_drift(residual, short)
+    drift, _ = estimate_drift(residual if raw is None else raw, short, twin)
     return dataclasses.replace(short, drift=drift) if drift > 0.0 else short
 
 
@@ -433,11 +436,8 @@ def sensor_noise(residual: np.ndarray, spread: np.ndarray, twin: np.ndarray | No
         channels = [_unsettled(residual[:, j], NOISE_FLOOR * float(spread[j])) for j in range(residual.shape[1])]
         return [c.settled() for c in common_drift(raw, channels)]
     residual = _unexplained_by(residual, twin)
-    channels = []
-    for j in range(residual.shape[1]):
-        short = short_scale(residual[:, j], NOISE_FLOOR * float(spread[j]))
-        drift, _ = estimate_drift(raw[:, j], short, np.nan_to_num(twin[:, j]))
-        channels.append(dataclasses.replace(short, drift=drift) if drift > 0.0 else short)
+    channels = [_unsettled(residual[:, j], NOISE_FLOOR * float(spread[j]), raw[:, j], np.nan_to_num(twin[:, j]))
+                for j in range(residual.shape[1])]
     return [c.settled() for c in common_drift(raw, channels)]
 
 
