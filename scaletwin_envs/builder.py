@@ -36,6 +36,8 @@ CYLINDER_ARMATURE = 1.0
 # keeps implicit damping on the slide while the velocity servo is saturated at relief (stall), which MuJoCo
 # otherwise drops, and without which a stalled bucket chatters.
 CYLINDER_DAMPING = 0.1
+SUPPLY_INERTIA = 1e4  # supply DOF inertia over the slide's (see _actuators)
+SUPPLY_TIME = 1e-3  # supply servo time constant in timesteps
 PILE_COLUMNS = 48  # visual boxes drawing the pile surface
 # Most physics steps per tilt-servo time constant τ (slide inertia over servo gain, servo_time_constant). While a
 # servo is clamped at relief MuJoCo integrates its force explicitly (it drops the servo's implicit damping), and one
@@ -176,7 +178,7 @@ def build_spec(spec: LoaderSpec, options: BuildOptions | None = None) -> mujoco.
     for which in ("lift", "tilt"):
         _add_cylinder(frame, spec, lay, which)
     _equalities(s, opt)
-    _actuators(s, spec)
+    _actuators(s, spec, opt)
     _soil_dampers(s, spec)
     return s
 
@@ -195,7 +197,31 @@ def _soil_dampers(s: mujoco.MjSpec, spec: LoaderSpec) -> None:
 
 def build_model(spec: LoaderSpec, options: BuildOptions | None = None) -> mujoco.MjModel:
     """Compile the loader model."""
-    return build_spec(spec, options).compile()
+    model = build_spec(spec, options).compile()
+    tune_relief(model, spec)
+    return model
+
+
+def supply_dofs(model: mujoco.MjModel, spec: LoaderSpec) -> list[tuple[int, float]]:
+    """(dof address, speed offset m/s) of the lift and the tilt supply: the supply runs at the commanded slide speed
+    minus the offset (the relief centre over the servo gain)."""
+    return [(int(model.joint(f"{w}_supply").dofadr[0]), relief_offset(c)[1] / servo_gain(c))
+            for w, c in (("lift", spec.lift), ("tilt", spec.tilt))]
+
+
+def tune_relief(model: mujoco.MjModel, spec: LoaderSpec) -> None:
+    """Set each relief tendon's friction-loss softness so that, unclamped, it is the velocity servo of gain
+    :func:`servo_gain` integrated implicitly: with reference acceleration -v / dt and regulariser
+    R = 1 / (kv dt) the constraint force is kv times the end-of-step speed error. R = (1 - d) / d × the row's
+    diagonal approximation (the tendon's invweight0), so d = x / (1 + x) with x = kv dt invweight0. Call after
+    every compile (and after changing the timestep)."""
+    dt = float(model.opt.timestep)
+    for which, cyl in (("lift", spec.lift), ("tilt", spec.tilt)):
+        t = model.tendon(f"{which}_relief").id
+        x = servo_gain(cyl) * dt * float(model.tendon_invweight0[t])
+        d = min(max(x / (1.0 + x), 1e-4), 0.9999)
+        model.tendon_solimp_fri[t] = [d, d, 1e-3, 0.5, 2.0]
+        model.tendon_solref_fri[t] = [0.0, -d / dt]
 
 
 def _world(s: mujoco.MjSpec, spec: LoaderSpec, opt: BuildOptions) -> None:
@@ -308,13 +334,32 @@ def _equalities(s: mujoco.MjSpec, opt: BuildOptions) -> None:
                        name1=a, name2=b, solref=[opt.constraint_timeconst, 1.0], solimp=opt.solimp)
 
 
-def _actuators(s: mujoco.MjSpec, spec: LoaderSpec) -> None:
+def relief_offset(cylinder: CylinderSpec) -> tuple[float, float]:
+    """(half-width, centre) of a cylinder's force range between its retract and extend relief forces, N: the relief
+    tendon's friction loss bounds its force symmetrically (± half-width), a constant force (the centre) on the slide
+    shifts that range to [-max_retract_force, max_extend_force]."""
+    half = 0.5 * (cylinder.max_extend_force + cylinder.max_retract_force)
+    return half, 0.5 * (cylinder.max_extend_force - cylinder.max_retract_force)
+
+
+def _actuators(s: mujoco.MjSpec, spec: LoaderSpec, opt: BuildOptions) -> None:
     for which, cyl in (("lift", spec.lift), ("tilt", spec.tilt)):
-        act = s.add_actuator(name=which, target=f"{which}_cylinder", trntype=mujoco.mjtTrn.mjTRN_JOINT)
-        act.set_to_velocity(kv=servo_gain(cyl))
+        kv = servo_gain(cyl)
+        half, centre = relief_offset(cyl)
+        inertia = SUPPLY_INERTIA * (cylinder_armature(spec) + cyl.rod_mass)
+        supply = s.worldbody.add_body(name=f"{which}_supply")
+        supply.add_joint(type=mujoco.mjtJoint.mjJNT_SLIDE, name=f"{which}_supply", axis=[1.0, 0.0, 0.0],
+                         armature=inertia)
+        _inertial(supply, 1e-9 * inertia, np.zeros(2), 1e-9 * inertia)
+        act = s.add_actuator(name=which, target=f"{which}_supply", trntype=mujoco.mjtTrn.mjTRN_JOINT)
+        gain = inertia / (SUPPLY_TIME * opt.timestep)
+        act.set_to_velocity(kv=gain)
+        act.biasprm[0] = -gain * centre / kv  # the supply runs centre / kv slower: the slide's servo sees u
         act.ctrlrange = [-cyl.retract_speed, cyl.extend_speed]
-        act.forcelimited = True
-        act.forcerange = [-cyl.max_retract_force, cyl.max_extend_force]
+        relief = s.add_tendon(name=f"{which}_relief", group=3)
+        relief.wrap_joint(f"{which}_cylinder", 1.0)
+        relief.wrap_joint(f"{which}_supply", -1.0)
+        relief.frictionloss = half
     # Drive: a torque-converter characteristic, force = traction × (command − v / v_max): full rimpull at stall,
     # none at top speed. As a pure velocity servo it also keeps MuJoCo's implicit damping on the frame.
     traction = spec.traction_coefficient * spec.weight
@@ -323,3 +368,12 @@ def _actuators(s: mujoco.MjSpec, spec: LoaderSpec) -> None:
     act.ctrlrange = [-spec.travel_speed, spec.travel_speed]
     act.forcelimited = True
     act.forcerange = [-traction, traction]
+    for which, cyl in (("lift", spec.lift), ("tilt", spec.tilt)):
+        _, centre = relief_offset(cyl)
+        act = s.add_actuator(name=f"{which}_relief_centre", target=f"{which}_cylinder",
+                             trntype=mujoco.mjtTrn.mjTRN_JOINT)
+        act.gaintype = mujoco.mjtGain.mjGAIN_FIXED
+        act.gainprm[0] = 0.0
+        act.biastype = mujoco.mjtBias.mjBIAS_AFFINE
+        act.biasprm[:3] = [centre, 0.0, 0.0]
+        act.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE

@@ -38,7 +38,7 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.envs.mujoco.mujoco_env import MujocoEnv
 
-from scaletwin_envs.builder import BuildOptions, build_model, froude_timestep
+from scaletwin_envs.builder import BuildOptions, build_model, froude_timestep, supply_dofs
 from scaletwin_envs.envs.hydraulics import CylinderValve
 from scaletwin_envs.signals import SignalReader
 from scaletwin_envs.specs.laws import PRODUCT_LINE, ScalingLaw, make_law
@@ -125,6 +125,7 @@ class LoaderEnv(MujocoEnv):
         self._slide = {k: self.model.joint(f"{k}_cylinder") for k in ("lift", "tilt")}
         # (qpos address, dof address, lower end of travel) per cylinder: read every step, resolved once
         self._slide_adr = {k: (int(j.qposadr[0]), int(j.dofadr[0]), float(j.range[0])) for k, j in self._slide.items()}
+        self._supply = supply_dofs(self.model, self.loader)
         self._warnings = tuple(int(w) for w in (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL,
                                                  mujoco.mjtWarning.mjWARN_BADQACC))
         self.valves = {k: CylinderValve(getattr(self.loader, k), *self._slide[k].range,
@@ -214,7 +215,10 @@ class LoaderEnv(MujocoEnv):
     # -- stepping ----------------------------------------------------------------------------------------
     def _simulate(self, ctrl: np.ndarray) -> str | None:
         """Advance one control step; returns an error message if the physics blew up."""
-        self.data.ctrl[:] = ctrl
+        self.data.ctrl[:3] = ctrl
+        qvel = self.data.qvel
+        for (dof, shift), speed in zip(self._supply, ctrl.tolist(), strict=False):
+            qvel[dof] = speed - shift  # the supply is a velocity source: set it, don't let its servo chase it
         warnings_before = self._bad_state_warnings()
         for _ in range(self.frame_skip // self.external_force_substeps):
             self._apply_external_forces()
