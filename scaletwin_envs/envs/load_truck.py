@@ -76,7 +76,7 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
-from scaletwin_envs.builder import build_spec
+from scaletwin_envs.builder import build_spec, tune_relief
 from scaletwin_envs.envs.dump_linkage import bucket_stops, dump_capable
 from scaletwin_envs.envs.phases import DigPhase
 from scaletwin_envs.envs.wheel_loader_dig import OBS_INDEX as DIG_INDEX
@@ -353,6 +353,7 @@ class WheelLoaderLoadTruckEnv(WheelLoaderDigEnv):
             )
             self._truck_geoms.append(name)
         model = s.compile()  # compiled colliding (MuJoCo refuses to enable it later); _set_leg switches it off
+        tune_relief(model, self.loader)  # the relief servo's softness reads the tilt slide's inertia as built
         chassis = model.geom("truck_chassis").id
         model.geom_contype[chassis] = model.geom_conaffinity[chassis] = 0  # below the floor: visual only
         model.vis.global_.offwidth = max(model.vis.global_.offwidth, self.width)

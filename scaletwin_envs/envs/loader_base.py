@@ -73,6 +73,8 @@ class LoaderEnv(MujocoEnv):
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["human", "rgb_array", "depth_array"]}
     #: ``reset(options=...)`` keys this env accepts → what they set (any other key raises ``ValueError``).
     RESET_OPTIONS: ClassVar[Mapping[str, str]] = {}
+    #: How the cylinders' velocity servos and relief valves are modelled (builder.SERVO_KINDS)
+    SERVO: ClassVar[str] = "constraint"
 
     def __init__(
         self,
@@ -91,7 +93,7 @@ class LoaderEnv(MujocoEnv):
             raise ValueError(f"law={law!r} applies to float scales only; scale={scale!r} is a fixed machine (a preset "
                              "or a LoaderSpec): pass a length ratio to build it on that law")
         self.loader = make_loader(scale, law, distortion)
-        self.build_options = BuildOptions.for_spec(self.loader, timestep, self._tilt_armature_factor())
+        self.build_options = BuildOptions.for_spec(self.loader, timestep, self._tilt_armature_factor(), self.SERVO)
         frame_skip = self._steps_in("frame_skip", frame_skip, DEFAULT_FRAME_SKIP)
         external_force_substeps = self._steps_in("external_force_substeps", external_force_substeps,
                                                  DEFAULT_EXTERNAL_FORCE_SUBSTEPS)
@@ -216,9 +218,10 @@ class LoaderEnv(MujocoEnv):
     def _simulate(self, ctrl: np.ndarray) -> str | None:
         """Advance one control step; returns an error message if the physics blew up."""
         self.data.ctrl[:3] = ctrl
-        qvel = self.data.qvel
-        for (dof, shift), speed in zip(self._supply, ctrl.tolist(), strict=False):
-            qvel[dof] = speed - shift  # the supply is a velocity source: set it, don't let its servo chase it
+        if self._supply:  # the valve is a velocity source (builder.SUPPLY_TIME): start it at its speed
+            qvel, (lift, tilt, _) = self.data.qvel, ctrl.tolist()
+            (lift_dof, lift_shift), (tilt_dof, tilt_shift) = self._supply
+            qvel[lift_dof], qvel[tilt_dof] = lift - lift_shift, tilt - tilt_shift
         warnings_before = self._bad_state_warnings()
         for _ in range(self.frame_skip // self.external_force_substeps):
             self._apply_external_forces()
@@ -252,10 +255,11 @@ class LoaderEnv(MujocoEnv):
         return sum(number[k] for k in self._warnings)
 
     def actuator_force(self, which: str) -> float:
-        """The valve's force on ``"lift"`` or ``"tilt"`` (N) at the last physics step: the servo's output, which
-        at relief may alternate between its limits step by step (observations keep it, as the policies were trained
-        on it; the ``Pf_*`` signals report the piston force, see :mod:`scaletwin_envs.signals`)."""
-        return float(self.data.actuator_force[self.signal_reader.ids.actuators[which]])
+        """The valve's force on ``"lift"`` or ``"tilt"`` (N) at the last physics step: the servo's output (the
+        relief tendon's force plus the relief centre; with the legacy actuator servo the actuator's force, which at
+        relief may alternate between its limits step by step). The ``Pf_*`` signals report the piston force (this
+        less the slide's armature and damping forces), see :mod:`scaletwin_envs.signals`."""
+        return self.signal_reader.servo_force(self.data, which)
 
     def cylinder_state(self, which: str) -> tuple[float, float]:
         """Extension from fully retracted (m) and speed (m/s) of ``"lift"`` or ``"tilt"``."""
