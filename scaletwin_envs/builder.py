@@ -391,11 +391,12 @@ def _actuators(s: mujoco.MjSpec, spec: LoaderSpec, opt: BuildOptions) -> None:
         # the servo gain (so that the slide's servo sees exactly the commanded speed).
         kv = servo_gain(cyl)
         half, centre = relief_offset(cyl)
-        inertia = SUPPLY_INERTIA * (cylinder_armature(spec) + cyl.rod_mass)
+        slide = cylinder_armature(spec) + cyl.rod_mass
+        inertia = SUPPLY_INERTIA * slide
         supply = s.worldbody.add_body(name=f"{which}_supply")
         supply.add_joint(type=mujoco.mjtJoint.mjJNT_SLIDE, name=f"{which}_supply", axis=[1.0, 0.0, 0.0],
                          armature=inertia)
-        _inertial(supply, 1e-9 * inertia, np.zeros(2), 1e-9 * inertia)  # all its inertia is the armature
+        _inertial(supply, 1e-9 * slide, np.zeros(2), 1e-9 * slide)  # its inertia is its armature (mass: ~none)
         act = s.add_actuator(name=which, target=f"{which}_supply", trntype=mujoco.mjtTrn.mjTRN_JOINT)
         gain = inertia / (SUPPLY_TIME * opt.timestep)
         act.set_to_velocity(kv=gain)
