@@ -242,10 +242,10 @@ class SignalReader:
         if self._relief is None:
             return float(data.actuator_force[self._act[cylinder]])
         t, row = self._relief[cylinder], self._relief_rows[cylinder]
-        efc_id, efc_type = data.efc_id, data.efc_type
-        if not (row < data.nefc and efc_id[row] == t and efc_type[row] == mujoco.mjtConstraint.mjCNSTR_FRICTION_TENDON):
+        efc_id, efc_type, friction = data.efc_id, data.efc_type, mujoco.mjtConstraint.mjCNSTR_FRICTION_TENDON
+        if not (row < data.nefc and efc_id[row] == t and efc_type[row] == friction):
             lo, hi = int(data.ne), int(data.ne + data.nf)
-            rows = np.nonzero((efc_id[lo:hi] == t) & (efc_type[lo:hi] == mujoco.mjtConstraint.mjCNSTR_FRICTION_TENDON))[0]
+            rows = np.nonzero((efc_id[lo:hi] == t) & (efc_type[lo:hi] == friction))[0]
             if rows.size != 1:
                 return self._relief_centre[cylinder]
             row = self._relief_rows[cylinder] = lo + int(rows[0])

@@ -13,8 +13,14 @@ import mujoco
 import numpy as np
 import pytest
 
-from scaletwin_envs.builder import (BuildOptions, build_model, froude_timestep, servo_gain, servo_time_constant,
-                                    supply_dofs)
+from scaletwin_envs.builder import (
+    BuildOptions,
+    build_model,
+    froude_timestep,
+    servo_gain,
+    servo_time_constant,
+    supply_dofs,
+)
 from scaletwin_envs.signals import SignalReader
 from scaletwin_envs.specs.loader import make_loader
 
