@@ -9,7 +9,9 @@ Names other modules rely on: bodies ``frame``, ``boom``, ``bucket``, ``payload``
 ``lift_barrel``, ``lift_rod``, ``tilt_barrel``, ``tilt_rod``; joints ``drive``, ``boom_hinge``,
 ``bucket_hinge``, ``bell_crank_hinge``, ``link_b_hinge``, ``lift_barrel_hinge``, ``tilt_barrel_hinge`` and the
 cylinder slides ``lift_cylinder``, ``tilt_cylinder``; sites ``pin_O``, ``pin_21`` and one per pin; equality
-constraints ``link_b_to_bucket``, ``lift_rod_to_boom``, ``tilt_rod_to_bell_crank``.
+constraints ``link_b_to_bucket``, ``lift_rod_to_boom``, ``tilt_rod_to_bell_crank``; with the constraint servo
+(default) the supply bodies and slides ``lift_supply``, ``tilt_supply`` and the relief tendons ``lift_relief``,
+``tilt_relief`` (:func:`tune_relief` must follow every compile).
 """
 
 from __future__ import annotations
@@ -32,20 +34,23 @@ SERVO_DROOP = 0.01  # a cylinder at relief force slips at this fraction of its r
 # the Newton–Euler route accounts for it as an axial inertial force.
 CYLINDER_ARMATURE = 1.0
 # Pressure override of the relief valve and flow losses, as viscous damping on each cylinder slide: 10 % of the
-# relief force at rated speed (estimate). Physically a relief valve's pressure rises with the flow it passes; it also
-# keeps implicit damping on the slide while the velocity servo is saturated at relief (stall), which MuJoCo
-# otherwise drops, and without which a stalled bucket chatters.
+# relief force at rated speed (estimate). Physically a relief valve's pressure rises with the flow it passes. With the
+# legacy actuator servo it also keeps implicit damping on the slide while the servo is saturated at relief (stall),
+# which MuJoCo otherwise drops, and without which a stalled bucket chatters; the constraint servo needs no such help
+# (it is 1/1000 of the servo gain: far too little to stop the relay, see SERVO_KINDS), so it stays as physics only.
 CYLINDER_DAMPING = 0.1
-SUPPLY_INERTIA = 1e4  # supply DOF inertia over the slide's (see _actuators)
-SUPPLY_TIME = 1e-3  # supply servo time constant in timesteps
 PILE_COLUMNS = 48  # visual boxes drawing the pile surface
 # How each cylinder's velocity servo and relief valve are modelled (BuildOptions.servo):
 # "constraint" (default): the valve is a velocity source (a "supply" slide, run at the commanded speed) and the
 # servo a friction-loss constraint on the relief tendon (slide − supply), bounded by the relief forces, softened so
 # that unclamped it is exactly the velocity servo of gain servo_gain (tune_relief). MuJoCo's constraint solver
 # decides whether the relief is open with the end-of-step speeds, the force is bounded inside the solve, and the
-# servo is integrated implicitly whether or not it is at relief: no relay, at any timestep (the dig converges at
-# the Froude step on all 26 machines of benchmarks/env_throughput.py --servo-sweep, each < 1 % on halving).
+# servo is integrated implicitly whether or not it is at relief: no relay, at any timestep. The scripted dig
+# converges at the Froude step (halving it moves F21 by < 1 %) at 24 of the 26 machines of
+# benchmarks/env_throughput.py --servo-sweep (the mini: 0.18 % at 54 servo time constants per step), the other two
+# (the smallest design-space samples, λ 0.10-0.12) at 1.2-1.3 %, halving with each halving of the step (first-order
+# error in the curl's break-out, below relief, no relay). Against the legacy servo at its rule's steps F21 over the
+# scripted dig moves by 0.06 % (ER12), 0.47 % (WA475), 0.58 % (mini).
 # "actuator" (legacy, kept for the discrepancy twin, whose structure variants edit that actuator): a force-limited
 # velocity actuator on the slide. While it is clamped at relief MuJoCo integrates its force explicitly (it drops
 # the servo's implicit damping), and one step changes the slide's speed by up to dt / τ times the speed band in
@@ -55,18 +60,19 @@ SERVO_KINDS = ("constraint", "actuator")
 # Legacy servo only: most physics steps per tilt-servo time constant τ (slide inertia over servo gain,
 # servo_time_constant). 21 is the ER12's own ratio (20.9) at its Froude step, where its dig is converged; it bounds
 # the relay but is no guarantee (16 of 26 sampled machines converged at this rule's steps; benchmarks/results/
-# env_throughput.md before 2026-11-26 15:00).
+# env_throughput.md, "before" columns).
 MAX_STEPS_PER_SERVO_TAU = 21.0
 # The supply slide stands for the pump and valve: an ideal flow source, which the cylinder's own load cannot slow.
 # MuJoCo's constraint solver predicts every slide's motion from its inertia alone (the implicit damping of an
 # actuator enters only after the solve), so the supply must be heavy to be read as a velocity source there: at
-# 10^4 times the slide's inertia the relief force moves it by 10^-4 of what it moves the slide. Not in the
-# linkage (its own body, coupled only through the relief tendon), so the linkage's mass, loads and pin forces
-# are untouched.
+# 10^4 times the slide's inertia the relief force moves it by 10^-4 of what it moves the slide (10^3 or 10^5 move
+# F21 over the dig by < 0.002 %, 10^6 by 0.015 %: conditioning). Not in the linkage (its own body, coupled only
+# through the relief tendon), so the linkage's mass, loads and pin forces are untouched.
 SUPPLY_INERTIA = 1e4
 # The supply's own velocity servo (the actuator the env's ctrl drives, unlimited): time constant 10^-3 timesteps,
 # so that (implicitly integrated) it holds the commanded speed to 0.1 % of any drift per step; the env also sets
-# the supply's speed whenever it sets ctrl, so the solver never sees it accelerate.
+# the supply's speed whenever it sets ctrl, so the solver never sees it accelerate (10^-2 or 10^-4 timesteps move F21
+# over the dig by < 10^-4 %).
 SUPPLY_TIME = 1e-3
 # Bounds on a timestep passed explicitly, as fractions of the Froude step: at most 2, where the constraint time
 # constant (4 Froude steps) reaches MuJoCo's floor of 2 timesteps (beyond it MuJoCo softens every loop and contact
@@ -130,8 +136,8 @@ class BuildOptions:
                  servo: str = "constraint") -> BuildOptions:
         """The options of ``spec``: ``timestep`` (s; None: the Froude step over :func:`timestep_substeps`, with the
         tilt slide's armature × ``tilt_armature_factor`` as built, for ``servo``, one of :data:`SERVO_KINDS`) and
-        constraint time constants of 4 Froude steps
-        whatever the timestep (the loops' and contacts' softness is physics, the same at every timestep)."""
+        constraint time constants of 4 Froude steps whatever the timestep (the loops' and contacts' softness is
+        physics, the same at every timestep)."""
         froude = froude_timestep(spec)
         if timestep is None:
             dt = froude / timestep_substeps(spec, tilt_armature_factor, servo)
