@@ -16,18 +16,20 @@ and of one whole dig timed end to end (``rollout.run_episode``), fastest repeat,
 down as a whole. The bound is ``mj_step`` alone (timestep × raw steps per second).
 
 **Timestep convergence.** Whether the default physics timestep (the Froude step 1 ms × √λ divided into
-``scaletwin_envs.builder.timestep_substeps`` parts: 3 at the mini, 1 at the ER12 and the WA475), which bounds the
+``scaletwin_envs.builder.timestep_substeps`` parts: 1 at every machine with the constraint servo,
+``scaletwin_envs.builder.SERVO_KINDS``; the legacy actuator servo divided the mini's into 3), which bounds the
 real-time factor, is converged: F21 of the scripted dig at the timestep × 1/2 and × 2 (``gym.make(...,
 timestep=...)``: control step, soil refresh period and constraint time constant unchanged in seconds), the default
 run's commands replayed open loop, against the default run; mean absolute percentage difference over the dig rows
 (penetrate, curl, lift). A timestep may be called a numerical choice only where it moves F21 by < 1 %
 (``tests/envs/test_env_speed.py``).
 
-**Servo sweep** (``--servo-sweep``, about 3 min): where the rule's constant comes from
-(``scaletwin_envs.builder.MAX_STEPS_PER_SERVO_TAU``). For 26 machines (the presets, the product-line law at λ 0.1-2.5,
-the Froude law at 1/7, design-space samples) the scripted dig is run at the Froude step and its commands replayed
-at the Froude step / n; each n's F21 over the dig rows is scored against n's half step (2n), and the pairs are
-binned by the timestep's ratio to the tilt servo's time constant.
+**Servo sweep** (``--servo-sweep``, about 3 min per tree): for 26 machines (the presets, the product-line law at
+λ 0.1-2.5, the Froude law at 1/7, design-space samples) the scripted dig is run at the Froude step and its commands
+replayed at the Froude step / n; each n's F21 over the dig rows is scored against n's half step (2n), and the pairs
+are binned by the timestep's ratio to the tilt servo's time constant (the ratio at which the legacy actuator servo
+relayed at relief). With ``--baseline`` the sweep runs in both trees and a side-by-side table compares each tree's
+default step.
 
 ``--baseline DIR`` also measures another checkout of ``scaletwin_envs`` (e.g. ``git archive REV scaletwin_envs |
 tar -x -C DIR``) in the same run: every repeat measures each tree in turn, in fresh processes.
@@ -235,6 +237,22 @@ def sweep_table(sweep: list[dict]) -> list[str]:
     return lines
 
 
+def side_by_side(sweeps: dict[str, list[dict]]) -> list[str]:
+    labels = list(sweeps)
+    lines = ["| machine | λ | Froude step / tilt-servo τ | " + " | ".join(
+        f"{lb}: parts | {lb}: F21 MAPE, step vs step / 2" for lb in labels) + " |",
+        "|---|---|---|" + "---|---|" * len(labels)]
+    for rows in zip(*sweeps.values(), strict=True):
+        s0 = rows[0]
+        cells = [f"{s['rule']} | {s['mape'][s['rule']]:.2f} %" if s["rule"] in s["mape"] else f"{s['rule']} | -"
+                 for s in rows]
+        lines.append(f"| {s0['name']} | {s0['scale']:.3f} | {s0['ratio']:.1f} | " + " | ".join(cells) + " |")
+    counts = [sum(s["mape"].get(s["rule"], 99.0) < 1.0 for s in sweeps[lb]) for lb in labels]
+    lines += ["", "Converged at the default step: " + ", ".join(
+        f"{lb} {c} of {len(sweeps[lb])}" for lb, c in zip(labels, counts, strict=True)) + "."]
+    return lines
+
+
 def in_subprocess(tree: Path, call: str) -> dict[str, float]:
     """``env_throughput.<call>`` in a fresh interpreter with ``tree`` first on sys.path (its scaletwin_envs)."""
     code = (f"import sys, json; sys.path.insert(0, {str(tree)!r}); sys.path.insert(1, {str(ROOT / 'benchmarks')!r}); "
@@ -289,12 +307,13 @@ def main() -> None:
         for label, tree in trees.items():  # each tree in turn: both see the same load
             results[label][scale] = in_subprocess(tree, f"measure({scale!r}, {args.repeats})")
     conv = {scale: in_subprocess(ROOT, f"convergence({scale!r})") for scale in SCALES}
-    sweep: list[dict] = []
+    sweeps: dict[str, list[dict]] = {}
     if args.servo_sweep:
         n_machines = int(in_subprocess(ROOT, "n_sweep_machines()"))
-        sweep = [in_subprocess(ROOT, f"servo_sweep({k})") for k in range(n_machines)]
-        for s in sweep:
-            s["mape"] = {int(n): v for n, v in s["mape"].items()}  # JSON keys are strings
+        for label, tree in trees.items():
+            sweeps[label] = [in_subprocess(tree, f"servo_sweep({k})") for k in range(n_machines)]
+            for s in sweeps[label]:
+                s["mape"] = {int(n): v for n, v in s["mape"].items()}  # JSON keys are strings
     load_after = os.getloadavg()
     minutes = (dt.datetime.now(dt.UTC) - started).total_seconds() / 60
     lines = [f"# env_throughput ({started:%Y-%m-%d %H:%M} UTC, {host_line()}, python {platform.python_version()}, "
@@ -314,16 +333,21 @@ def main() -> None:
     lines += ["## Timestep convergence (this tree)", "",
               "F21 of the scripted dig at the physics timestep × 1/2 and × 2 (control step, soil refresh and "
               "constraint time constant unchanged in seconds; the default run's commands replayed open loop) against "
-              "the default timestep (the Froude step 1 ms × √λ over `builder.timestep_substeps`, which keeps it "
-              "within 21 tilt-servo time constants), over the dig rows (penetrate, curl, lift). A timestep is "
+              "the default timestep (the Froude step 1 ms × √λ over `builder.timestep_substeps`: 1 with the "
+              "constraint servo, `builder.SERVO_KINDS`), over the dig rows (penetrate, curl, lift). A timestep is "
               "converged where halving it moves F21 by < 1 %; a larger one would be a numerical choice only if it "
               "moved F21 by < 1 % too.", "", *convergence_table(conv), ""]
-    if sweep:
-        lines += ["## Timestep against the tilt servo's time constant (this tree)", "",
+    if len(sweeps) > 1:
+        lines += ["## Default timestep, side by side", "",
+                  "Each tree's default step (its `builder.timestep_substeps` parts of the Froude step) and the F21 "
+                  "MAPE over the dig rows of that step against its half (< 1 %: converged).", "",
+                  *side_by_side(sweeps), ""]
+    for label, sweep in sweeps.items():
+        lines += [f"## Timestep against the tilt servo's time constant ({label})", "",
                   "Each machine's scripted dig at its Froude step, the commands replayed at the Froude step / n and "
                   "/ 2n; F21 MAPE over the dig rows of n against 2n. τ: the tilt slide's inertia (armature + rod) "
-                  "over its velocity servo's gain (`builder.servo_time_constant`). The rule's parts "
-                  "(`builder.timestep_substeps`) keep the timestep within 21 τ.", "", *sweep_table(sweep), ""]
+                  "over its velocity servo's gain (`builder.servo_time_constant`). The rule's parts: "
+                  "`builder.timestep_substeps` (bold: that step).", "", *sweep_table(sweep), ""]
     text = "\n".join(lines) + "\n"
     print(text)
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)

@@ -9,7 +9,9 @@ Names other modules rely on: bodies ``frame``, ``boom``, ``bucket``, ``payload``
 ``lift_barrel``, ``lift_rod``, ``tilt_barrel``, ``tilt_rod``; joints ``drive``, ``boom_hinge``,
 ``bucket_hinge``, ``bell_crank_hinge``, ``link_b_hinge``, ``lift_barrel_hinge``, ``tilt_barrel_hinge`` and the
 cylinder slides ``lift_cylinder``, ``tilt_cylinder``; sites ``pin_O``, ``pin_21`` and one per pin; equality
-constraints ``link_b_to_bucket``, ``lift_rod_to_boom``, ``tilt_rod_to_bell_crank``.
+constraints ``link_b_to_bucket``, ``lift_rod_to_boom``, ``tilt_rod_to_bell_crank``; with the constraint servo
+(default) the supply bodies and slides ``lift_supply``, ``tilt_supply`` and the relief tendons ``lift_relief``,
+``tilt_relief`` (:func:`tune_relief` must follow every compile).
 """
 
 from __future__ import annotations
@@ -32,26 +34,46 @@ SERVO_DROOP = 0.01  # a cylinder at relief force slips at this fraction of its r
 # the Newton–Euler route accounts for it as an axial inertial force.
 CYLINDER_ARMATURE = 1.0
 # Pressure override of the relief valve and flow losses, as viscous damping on each cylinder slide: 10 % of the
-# relief force at rated speed (estimate). Physically a relief valve's pressure rises with the flow it passes; it also
-# keeps implicit damping on the slide while the velocity servo is saturated at relief (stall), which MuJoCo
-# otherwise drops, and without which a stalled bucket chatters.
+# relief force at rated speed (estimate). Physically a relief valve's pressure rises with the flow it passes. With the
+# legacy actuator servo it also keeps implicit damping on the slide while the servo is saturated at relief (stall),
+# which MuJoCo otherwise drops, and without which a stalled bucket chatters; the constraint servo needs no such help
+# (it is 1/1000 of the servo gain: far too little to stop the relay, see SERVO_KINDS), so it stays as physics only.
 CYLINDER_DAMPING = 0.1
 PILE_COLUMNS = 48  # visual boxes drawing the pile surface
-# Most physics steps per tilt-servo time constant τ (slide inertia over servo gain, servo_time_constant). While a
-# servo is clamped at relief MuJoCo integrates its force explicitly (it drops the servo's implicit damping), and one
-# step changes the slide's speed by up to dt / τ times the speed band in which the servo is unclamped; the servo can
-# then lock into a relay between its extend and retract limits, switching every physics step (a cycle of p steps
-# can miss the band only if dt / τ > p), which moves the dig's pin forces. At the mini's Froude step (dt / τ = 54)
-# the tilt relays 19 times per 100 steps over the scripted dig and F21 is 10 % off its value at a third of the step
-# (0.4 relays per 100 steps; halving that moves F21 by 0.6 %). The lift servo, whose load stays on one side of its
-# band, relayed at most 0.35 times per 100 steps in the digs checked. 21 is the ER12's own ratio (20.9) at its Froude
-# step, where its dig is converged (halving the step moves F21 by 0.2 %), so the ER12 and the WA475 (13.5) keep
-# their Froude steps and recordings. It bounds the relay but is no guarantee: whether a dig locks in at a given
-# ratio depends on its load history. Over 26 machines (presets, product-line law, design-space samples, λ 0.1-2.5)
-# at 6 steps each, halving the step moved F21 by < 1 % in 96 % of the (machine, step) pairs at ratios < 10, 74 % at
-# 10-20, 47 % at 20-30, none above 30; at this rule's steps 16 of the 26 converged, at ratios <= 10 (3 times the
-# ER12's cost) 23 (benchmarks/env_throughput.py --servo-sweep, benchmarks/results/env_throughput.md).
+# How each cylinder's velocity servo and relief valve are modelled (BuildOptions.servo):
+# "constraint" (default): the valve is a velocity source (a "supply" slide, run at the commanded speed) and the
+# servo a friction-loss constraint on the relief tendon (slide − supply), bounded by the relief forces, softened so
+# that unclamped it is exactly the velocity servo of gain servo_gain (tune_relief). MuJoCo's constraint solver
+# decides whether the relief is open with the end-of-step speeds, the force is bounded inside the solve, and the
+# servo is integrated implicitly whether or not it is at relief: no relay, at any timestep. The scripted dig
+# converges at the Froude step (halving it moves F21 by < 1 %) at 24 of the 26 machines of
+# benchmarks/env_throughput.py --servo-sweep (the mini: 0.18 % at 54 servo time constants per step), the other two
+# (the smallest design-space samples, λ 0.10-0.12) at 1.2-1.3 %, halving with each halving of the step (first-order
+# error in the curl's break-out, below relief, no relay). Against the legacy servo at its rule's steps F21 over the
+# scripted dig moves by 0.06 % (ER12), 0.47 % (WA475), 0.58 % (mini).
+# "actuator" (legacy, kept for the discrepancy twin, whose structure variants edit that actuator): a force-limited
+# velocity actuator on the slide. While it is clamped at relief MuJoCo integrates its force explicitly (it drops
+# the servo's implicit damping), and one step changes the slide's speed by up to dt / τ times the speed band in
+# which the servo is unclamped; the servo can then lock into a relay between its extend and retract limits,
+# switching every physics step, which moves the dig's pin forces (mini at its Froude step: F21 62 % off).
+SERVO_KINDS = ("constraint", "actuator")
+# Legacy servo only: most physics steps per tilt-servo time constant τ (slide inertia over servo gain,
+# servo_time_constant). 21 is the ER12's own ratio (20.9) at its Froude step, where its dig is converged; it bounds
+# the relay but is no guarantee (16 of 26 sampled machines converged at this rule's steps; benchmarks/results/
+# env_throughput.md, "before" columns).
 MAX_STEPS_PER_SERVO_TAU = 21.0
+# The supply slide stands for the pump and valve: an ideal flow source, which the cylinder's own load cannot slow.
+# MuJoCo's constraint solver predicts every slide's motion from its inertia alone (the implicit damping of an
+# actuator enters only after the solve), so the supply must be heavy to be read as a velocity source there: at
+# 10^4 times the slide's inertia the relief force moves it by 10^-4 of what it moves the slide (10^3 or 10^5 move
+# F21 over the dig by < 0.002 %, 10^6 by 0.015 %: conditioning). Not in the linkage (its own body, coupled only
+# through the relief tendon), so the linkage's mass, loads and pin forces are untouched.
+SUPPLY_INERTIA = 1e4
+# The supply's own velocity servo (the actuator the env's ctrl drives, unlimited): time constant 10^-3 timesteps,
+# so that (implicitly integrated) it holds the commanded speed to 0.1 % of any drift per step; the env also sets
+# the supply's speed whenever it sets ctrl, so the solver never sees it accelerate (10^-2 or 10^-4 timesteps move F21
+# over the dig by < 10^-4 %).
+SUPPLY_TIME = 1e-3
 # Bounds on a timestep passed explicitly, as fractions of the Froude step: at most 2, where the constraint time
 # constant (4 Froude steps) reaches MuJoCo's floor of 2 timesteps (beyond it MuJoCo softens every loop and contact
 # silently); at least 1/1000, where one scripted dig already costs minutes of CPU (a smaller value is a unit error).
@@ -75,9 +97,14 @@ def servo_time_constant(spec: LoaderSpec, which: str = "tilt", armature_factor: 
     return (armature_factor * cylinder_armature(spec) + cyl.rod_mass) / servo_gain(cyl)
 
 
-def timestep_substeps(spec: LoaderSpec, tilt_armature_factor: float = 1.0) -> int:
-    """Parts the Froude step is divided into: the fewest that keep the timestep within
-    :data:`MAX_STEPS_PER_SERVO_TAU` tilt-servo time constants (1 for the ER12 and the WA475, 3 for the mini)."""
+def timestep_substeps(spec: LoaderSpec, tilt_armature_factor: float = 1.0, servo: str = "constraint") -> int:
+    """Parts the Froude step is divided into: 1 with the constraint servo (it is integrated implicitly at relief
+    too); with the legacy actuator servo the fewest that keep the timestep within :data:`MAX_STEPS_PER_SERVO_TAU`
+    tilt-servo time constants (1 for the ER12 and the WA475, 3 for the mini)."""
+    if servo not in SERVO_KINDS:
+        raise ValueError(f"servo must be one of {SERVO_KINDS}, got {servo!r}")
+    if servo == "constraint":
+        return 1
     ratio = froude_timestep(spec) / servo_time_constant(spec, "tilt", tilt_armature_factor)
     return max(1, math.ceil(ratio / MAX_STEPS_PER_SERVO_TAU - 1e-9))
 
@@ -102,20 +129,23 @@ class BuildOptions:
     timestep: float
     constraint_timeconst: float
     constraint_width: float  # m: solimp transition width, scaled with the machine so similarity holds
+    servo: str = "constraint"  # one of SERVO_KINDS
 
     @classmethod
-    def for_spec(cls, spec: LoaderSpec, timestep: float | None = None, tilt_armature_factor: float = 1.0
-                 ) -> BuildOptions:
+    def for_spec(cls, spec: LoaderSpec, timestep: float | None = None, tilt_armature_factor: float = 1.0,
+                 servo: str = "constraint") -> BuildOptions:
         """The options of ``spec``: ``timestep`` (s; None: the Froude step over :func:`timestep_substeps`, with the
-        tilt slide's armature × ``tilt_armature_factor`` as built) and constraint time constants of 4 Froude steps
-        whatever the timestep (the loops' and contacts' softness is physics, the same at every timestep)."""
+        tilt slide's armature × ``tilt_armature_factor`` as built, for ``servo``, one of :data:`SERVO_KINDS`) and
+        constraint time constants of 4 Froude steps whatever the timestep (the loops' and contacts' softness is
+        physics, the same at every timestep)."""
         froude = froude_timestep(spec)
         if timestep is None:
-            dt = froude / timestep_substeps(spec, tilt_armature_factor)
+            dt = froude / timestep_substeps(spec, tilt_armature_factor, servo)
         else:
+            timestep_substeps(spec, tilt_armature_factor, servo)  # checks servo
             dt = check_timestep(spec, timestep)
         return cls(timestep=dt, constraint_timeconst=4.0 * froude,
-                   constraint_width=1e-3 * spec.characteristic_length)
+                   constraint_width=1e-3 * spec.characteristic_length, servo=servo)
 
     @property
     def solimp(self) -> list[float]:
@@ -176,7 +206,7 @@ def build_spec(spec: LoaderSpec, options: BuildOptions | None = None) -> mujoco.
     for which in ("lift", "tilt"):
         _add_cylinder(frame, spec, lay, which)
     _equalities(s, opt)
-    _actuators(s, spec)
+    _actuators(s, spec, opt)
     _soil_dampers(s, spec)
     return s
 
@@ -195,7 +225,40 @@ def _soil_dampers(s: mujoco.MjSpec, spec: LoaderSpec) -> None:
 
 def build_model(spec: LoaderSpec, options: BuildOptions | None = None) -> mujoco.MjModel:
     """Compile the loader model."""
-    return build_spec(spec, options).compile()
+    model = build_spec(spec, options).compile()
+    tune_relief(model, spec)
+    return model
+
+
+def supply_dofs(model: mujoco.MjModel, spec: LoaderSpec) -> list[tuple[int, float]]:
+    """(dof address, speed offset m/s) of the lift and the tilt supply slides (empty with the legacy actuator servo):
+    a supply runs at the commanded slide speed minus its offset (the relief centre over the servo gain)."""
+    if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, "lift_supply") < 0:
+        return []
+    return [(int(model.joint(f"{w}_supply").dofadr[0]), relief_offset(c)[1] / servo_gain(c))
+            for w, c in (("lift", spec.lift), ("tilt", spec.tilt))]
+
+
+def tune_relief(model: mujoco.MjModel, spec: LoaderSpec) -> None:
+    """Make each relief tendon's friction loss the velocity servo of gain :func:`servo_gain` (a no-op with the
+    legacy actuator servo). MuJoCo solves a friction-loss row for the force f in [−F, F] that minimises
+    ½ M-weighted change of motion + ½ R f², with f = −(a − a_ref) / R inside the bounds, a the row's (slide −
+    supply) acceleration. With a_ref = −v / dt (damping 1 / dt, no stiffness: solref = [0, −d / dt], MuJoCo
+    divides by d) and R = 1 / (kv dt), a − a_ref = v_end / dt and f = −kv v_end: the servo's force on the
+    end-of-step speed error, i.e. the velocity servo integrated implicitly, as MuJoCo integrates the unclamped
+    actuator; at the bounds f = ±F (the relief valve) and the solver keeps it there only while the end-of-step
+    speed error still asks for more. MuJoCo sets R = (1 − d) / d × the row's diagonal approximation (the tendon's
+    invweight0), hence the impedance d = x / (1 + x) with x = kv dt invweight0 (dmin = dmax = d: no dependence on
+    position). Call after every compile and after changing the timestep or the slides' inertia."""
+    dt = float(model.opt.timestep)
+    if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_TENDON, "lift_relief") < 0:
+        return
+    for which, cyl in (("lift", spec.lift), ("tilt", spec.tilt)):
+        t = model.tendon(f"{which}_relief").id
+        x = servo_gain(cyl) * dt * float(model.tendon_invweight0[t])
+        d = min(max(x / (1.0 + x), 1e-4), 0.9999)
+        model.tendon_solimp_fri[t] = [d, d, 1e-3, 0.5, 2.0]
+        model.tendon_solref_fri[t] = [0.0, -d / dt]
 
 
 def _world(s: mujoco.MjSpec, spec: LoaderSpec, opt: BuildOptions) -> None:
@@ -308,13 +371,49 @@ def _equalities(s: mujoco.MjSpec, opt: BuildOptions) -> None:
                        name1=a, name2=b, solref=[opt.constraint_timeconst, 1.0], solimp=opt.solimp)
 
 
-def _actuators(s: mujoco.MjSpec, spec: LoaderSpec) -> None:
+def relief_offset(cylinder: CylinderSpec) -> tuple[float, float]:
+    """(half-width, centre) of a cylinder's force range from its retract to its extend relief force, N: the relief
+    tendon's friction loss bounds its force symmetrically (± half-width); a constant force (the centre) on the slide
+    shifts that range to [−max_retract_force, max_extend_force]."""
+    half = 0.5 * (cylinder.max_extend_force + cylinder.max_retract_force)
+    return half, 0.5 * (cylinder.max_extend_force - cylinder.max_retract_force)
+
+
+def _actuators(s: mujoco.MjSpec, spec: LoaderSpec, opt: BuildOptions) -> None:
+    """Actuators ``lift``, ``tilt`` (ctrl: commanded slide speed, m/s) and ``drive`` (ctrl: travel speed, m/s), in
+    that order (the env writes ctrl[:3]); with the constraint servo also ``lift_relief_centre`` and
+    ``tilt_relief_centre`` (constant forces, no ctrl), the bodies and slides ``lift_supply``, ``tilt_supply`` and
+    the fixed tendons ``lift_relief``, ``tilt_relief`` (slide − supply)."""
     for which, cyl in (("lift", spec.lift), ("tilt", spec.tilt)):
-        act = s.add_actuator(name=which, target=f"{which}_cylinder", trntype=mujoco.mjtTrn.mjTRN_JOINT)
-        act.set_to_velocity(kv=servo_gain(cyl))
+        if opt.servo == "actuator":
+            act = s.add_actuator(name=which, target=f"{which}_cylinder", trntype=mujoco.mjtTrn.mjTRN_JOINT)
+            act.set_to_velocity(kv=servo_gain(cyl))
+            act.ctrlrange = [-cyl.retract_speed, cyl.extend_speed]
+            act.forcelimited = True
+            act.forcerange = [-cyl.max_retract_force, cyl.max_extend_force]
+            continue
+        # The valve as a velocity source: a heavy slide outside the linkage (SUPPLY_INERTIA) held at the commanded
+        # speed by its own stiff servo (SUPPLY_TIME), less the speed the relief centre's force would add through
+        # the servo gain (so that the slide's servo sees exactly the commanded speed).
+        kv = servo_gain(cyl)
+        half, centre = relief_offset(cyl)
+        slide = cylinder_armature(spec) + cyl.rod_mass
+        inertia = SUPPLY_INERTIA * slide
+        supply = s.worldbody.add_body(name=f"{which}_supply")
+        supply.add_joint(type=mujoco.mjtJoint.mjJNT_SLIDE, name=f"{which}_supply", axis=[1.0, 0.0, 0.0],
+                         armature=inertia)
+        _inertial(supply, 1e-9 * slide, np.zeros(2), 1e-9 * slide)  # its inertia is its armature (mass: ~none)
+        act = s.add_actuator(name=which, target=f"{which}_supply", trntype=mujoco.mjtTrn.mjTRN_JOINT)
+        gain = inertia / (SUPPLY_TIME * opt.timestep)
+        act.set_to_velocity(kv=gain)
+        act.biasprm[0] = -gain * centre / kv
         act.ctrlrange = [-cyl.retract_speed, cyl.extend_speed]
-        act.forcelimited = True
-        act.forcerange = [-cyl.max_retract_force, cyl.max_extend_force]
+        # The servo and relief valve: friction loss on slide − supply, bounded by ± half the relief range (its
+        # softness set after compiling, tune_relief); the relief centre is a constant force on the slide.
+        relief = s.add_tendon(name=f"{which}_relief", group=3)  # group 3: not drawn by default
+        relief.wrap_joint(f"{which}_cylinder", 1.0)
+        relief.wrap_joint(f"{which}_supply", -1.0)
+        relief.frictionloss = half
     # Drive: a torque-converter characteristic, force = traction × (command − v / v_max): full rimpull at stall,
     # none at top speed. As a pure velocity servo it also keeps MuJoCo's implicit damping on the frame.
     traction = spec.traction_coefficient * spec.weight
@@ -323,3 +422,10 @@ def _actuators(s: mujoco.MjSpec, spec: LoaderSpec) -> None:
     act.ctrlrange = [-spec.travel_speed, spec.travel_speed]
     act.forcelimited = True
     act.forcerange = [-traction, traction]
+    if opt.servo == "constraint":
+        for which, cyl in (("lift", spec.lift), ("tilt", spec.tilt)):
+            act = s.add_actuator(name=f"{which}_relief_centre", target=f"{which}_cylinder",
+                                 trntype=mujoco.mjtTrn.mjTRN_JOINT)
+            act.gaintype, act.biastype = mujoco.mjtGain.mjGAIN_FIXED, mujoco.mjtBias.mjBIAS_AFFINE
+            act.gainprm[0] = 0.0
+            act.biasprm[:3] = [relief_offset(cyl)[1], 0.0, 0.0]

@@ -111,6 +111,13 @@ class SignalReader:
         self._gravity = -float(model.opt.gravity[2])
         self._bucket_tendons = self._tendons_on(self.ids.bodies["bucket"])
         self._act = {k: self.ids.actuators[k] for k in ("lift", "tilt")}
+        # Constraint servo (builder.SERVO_KINDS): the servo's force is the relief tendon's friction-loss force plus
+        # the relief centre (a constant force on the slide); None with the legacy actuator servo
+        relief = {k: mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_TENDON, f"{k}_relief") for k in ("lift", "tilt")}
+        self._relief = None if min(relief.values()) < 0 else relief
+        self._relief_centre = {k: float(model.actuator(f"{k}_relief_centre").biasprm[0]) for k in relief} \
+            if self._relief else {}
+        self._relief_rows = {"lift": 0, "tilt": 0}  # their rows at the last read (checked before use)
         self._boom_qpos = int(model.jnt_qposadr[self.ids.joints["boom_hinge"]])
         self._drive_dof = int(model.jnt_dofadr[self.ids.joints["drive"]])
         self._f21_row = 0  # first constraint row of link_b_to_bucket at the last read (checked before use)
@@ -209,8 +216,7 @@ class SignalReader:
         c, s = math.cos(pitch), math.sin(pitch)
         f21 = self._connect_force(data)
         _, _, _, f31x, _, f31z = self._cfrc_int[b].tolist()
-        force = self._actuator_force
-        actuator = {k: float(force[a]) for k, a in self._act.items()}
+        actuator = {k: self.servo_force(data, k) for k in ("lift", "tilt")}
         pf = {k: actuator[k] - self._armature_force(data, k) for k in ("lift", "tilt")}  # force on the piston
         # the four magnitudes by one np.hypot call: the values np.hypot gives each (math.hypot may differ in the
         # last bit)
@@ -228,6 +234,22 @@ class SignalReader:
         if two_routes:
             out.update(self._route2(data, origin, g, f21, (f31x, f31z), actuator))
         return out
+
+    def servo_force(self, data: mujoco.MjData, cylinder: str) -> float:
+        """The servo's force on ``cylinder``'s slide (N): the relief tendon's friction-loss force (its row among the
+        friction rows, which follow the equality rows) plus the relief centre; the actuator's force with the legacy
+        actuator servo."""
+        if self._relief is None:
+            return float(data.actuator_force[self._act[cylinder]])
+        t, row = self._relief[cylinder], self._relief_rows[cylinder]
+        efc_id, efc_type, friction = data.efc_id, data.efc_type, mujoco.mjtConstraint.mjCNSTR_FRICTION_TENDON
+        if not (row < data.nefc and efc_id[row] == t and efc_type[row] == friction):
+            lo, hi = int(data.ne), int(data.ne + data.nf)
+            rows = np.nonzero((efc_id[lo:hi] == t) & (efc_type[lo:hi] == friction))[0]
+            if rows.size != 1:
+                return self._relief_centre[cylinder]
+            row = self._relief_rows[cylinder] = lo + int(rows[0])
+        return float(data.efc_force[row]) + self._relief_centre[cylinder]
 
     def _connect_force(self, data: mujoco.MjData) -> tuple[float, float]:
         """x and z of the ``link_b_to_bucket`` connect constraint's force (N): its three rows among the equality

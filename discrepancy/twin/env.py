@@ -90,7 +90,13 @@ class PhysicsParams:
 
 
 class TwinDigEnv(WheelLoaderDigEnv):
-    """``WheelLoaderDig-v0`` with a :class:`Structure` built in and :class:`PhysicsParams` set at run time."""
+    """``WheelLoaderDig-v0`` with a :class:`Structure` built in and :class:`PhysicsParams` set at run time.
+
+    Built with the legacy actuator servo (``scaletwin_envs.builder.SERVO_KINDS``): its servo-gain, delay and
+    compliance parameters edit the cylinders' force-limited velocity actuators, so it keeps them and the timestep
+    rule they need (not yet ported to the env's constraint servo)."""
+
+    SERVO = "actuator"
 
     def __init__(self, structure: Structure | None = None, **kwargs: Any) -> None:
         self.structure = structure or Structure()

@@ -64,6 +64,12 @@ Version history:
     (0.126 ms), the WA475's whole. The first pass's dig is not converged at these steps: halving them moves its
     F21 by 2.8 % (ER12), 1.7 % (mini), 2.4 % (WA475), where a quarter of the Froude step gives 0.12 %, 0.48 %,
     0.57 % (scripted cycle, seed 0, commands replayed open loop); the tilt servo relays at relief (known limit).
+    v0 (2026-11-26, servo branch): the cylinders' servo is ``WheelLoaderDig-v0``'s constraint servo
+    (:data:`scaletwin_envs.builder.SERVO_KINDS`), tuned to the variant's tilt slide as built
+    (:func:`scaletwin_envs.builder.tune_relief`); the timestep is the Froude step at every scale (ER12 1 ms, mini
+    0.378 ms, WA475 1.414 ms), where halving it moves the first pass's dig F21 by 0.33 %, 0.22 %, 1.0 % (scripted
+    cycle in gravel, seed 0, dig rows up to the first dump, commands replayed open loop; 0.27 %, 1.07 %, 2.38 % at
+    the old steps, measured the same way).
 """
 
 from __future__ import annotations
@@ -76,7 +82,7 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
-from scaletwin_envs.builder import build_spec
+from scaletwin_envs.builder import build_spec, tune_relief
 from scaletwin_envs.envs.dump_linkage import bucket_stops, dump_capable
 from scaletwin_envs.envs.phases import DigPhase
 from scaletwin_envs.envs.wheel_loader_dig import OBS_INDEX as DIG_INDEX
@@ -268,11 +274,12 @@ class WheelLoaderLoadTruckEnv(WheelLoaderDigEnv):
         self.cycle_time_limit = _number("max_episode_time", max_episode_time)
         # Oil column of the tilt circuit (the tilt slide's armature, builder.cylinder_armature): the variant's
         # cylinder has ~4x the piston area, so ~4x the oil moving with the piston. Scaled with the area it keeps the
-        # servo stiffness (kv ∝ relief force) to armature ratio of the machine's own cylinder; left at the original
-        # value, a 4x stiffer servo on the same armature, once at relief, locks into a relay oscillation between its
-        # force limits every physics step (MuJoCo drops the servo's implicit damping while it is clamped), in which
-        # the tilt command has no effect: on the mini the loaded bucket then neither dumped nor held its pitch
-        # (2026-11-27).
+        # servo stiffness (kv ∝ relief force) to armature ratio of the machine's own cylinder; with the legacy
+        # actuator servo, left at the original value, a 4x stiffer servo on the same armature, once at relief,
+        # locked into a relay oscillation between its force limits every physics step (MuJoCo drops the servo's
+        # implicit damping while it is clamped), in which the tilt command had no effect: on the mini the loaded
+        # bucket then neither dumped nor held its pitch (2026-11-27). The constraint servo does not relay; the ratio
+        # stays as the physics of the larger cylinder.
         self._tilt_oil_ratio = 1.0
         if dump_linkage:
             variant = dump_capable(spec)
@@ -353,6 +360,7 @@ class WheelLoaderLoadTruckEnv(WheelLoaderDigEnv):
             )
             self._truck_geoms.append(name)
         model = s.compile()  # compiled colliding (MuJoCo refuses to enable it later); _set_leg switches it off
+        tune_relief(model, self.loader)  # the relief servo's softness reads the tilt slide's inertia as built
         chassis = model.geom("truck_chassis").id
         model.geom_contype[chassis] = model.geom_conaffinity[chassis] = 0  # below the floor: visual only
         model.vis.global_.offwidth = max(model.vis.global_.offwidth, self.width)

@@ -21,9 +21,9 @@ steps of 1 ms × √λ, and the Froude time both grow as √λ); when changing e
 ``max_episode_steps=horizon_steps(max_episode_time, frame_skip, ...)`` to ``gym.make`` as well, or gymnasium's
 ``TimeLimit`` truncates at 290 steps (``env.unwrapped.horizon`` is the env's own).
 
-Timestep: by default the Froude step (1 ms × √λ) divided into as many parts as the tilt cylinder's velocity servo
-needs (:func:`scaletwin_envs.builder.timestep_substeps`: 1 at the ER12 and the WA475, 3 at the mini, 0.126 ms);
-``timestep=`` (s) sets another, e.g. for a convergence check. ``frame_skip`` and ``external_force_substeps`` count
+Timestep: by default the Froude step (1 ms × √λ; :func:`scaletwin_envs.builder.timestep_substeps` is 1 with the
+cylinders' constraint servo, :data:`scaletwin_envs.builder.SERVO_KINDS`); ``timestep=`` (s) sets another, e.g.
+for a convergence check. ``frame_skip`` and ``external_force_substeps`` count
 physics steps at the env's timestep; left None they keep the control step at 100 Froude steps and the soil refresh
 at 20 (then the timestep must divide those periods).
 
@@ -70,6 +70,20 @@ Version history:
     guarantee elsewhere: 16 of 26 machines sampled over the product line converge at it
     (``benchmarks/results/env_throughput.md``). The id stays v0 for now although the mini's dynamics changed
     (gymnasium's convention would bump it; the zoo's checkpoints and the recordings name v0).
+    v0 (2026-11-26, servo branch; dynamics changed everywhere, slightly): each cylinder's velocity servo and relief
+    valve is a friction-loss constraint on a relief tendon between the slide and a supply slide (the valve, a
+    velocity source at the commanded speed), softened to the same gain and bounded by the same relief forces
+    (:data:`scaletwin_envs.builder.SERVO_KINDS`, :func:`scaletwin_envs.builder.tune_relief`): MuJoCo's solver
+    bounds the force inside the solve and the servo stays implicit at relief, so it no longer relays. The timestep
+    is the Froude step everywhere (the mini's 0.378 ms again); halving it moves F21 over the scripted dig by < 1 %
+    at 24 of the 26 sampled machines (all three presets; the two smallest design-space samples 1.2-1.3 %, first
+    order in the step). Against the code before: F21 over the scripted dig 0.06 % (ER12), 0.47 % (WA475), 0.58 %
+    (mini, against 0.126 ms) mean absolute; on carrying holds, where the old servo relayed at relief on 8 % of the
+    ER12's control steps, 4-8 %, the new converged (halving the step: 0.2-0.5 % against 6-9 % before). The
+    observation's servo forces are the relief tendon's force plus the relief centre, with no relay (the policies
+    were trained on the relaying output). Two more slides (``lift_supply``, ``tilt_supply``) and two constant-force
+    actuators (``lift_relief_centre``, ``tilt_relief_centre``) in the model: nq, nv and nu grow (ctrl[:3] is as
+    before), so saved MuJoCo states of the old model do not load.
 """
 
 from __future__ import annotations

@@ -24,8 +24,8 @@ def test_both_env_checkers_pass(scale: str | float) -> None:
 
 BODY_PARENTS = {"frame": "world", "boom": "frame", "bucket": "boom", "payload": "bucket", "bell_crank": "boom",
                 "link_b": "bell_crank", "lift_barrel": "frame", "lift_rod": "lift_barrel", "tilt_barrel": "frame",
-                "tilt_rod": "tilt_barrel"}
-SLIDES = {"drive", "lift_cylinder", "tilt_cylinder"}
+                "tilt_rod": "tilt_barrel", "lift_supply": "world", "tilt_supply": "world"}  # supplies: the valves
+SLIDES = {"drive", "lift_cylinder", "tilt_cylinder", "lift_supply", "tilt_supply"}
 HINGES = {"boom_hinge", "bucket_hinge", "bell_crank_hinge", "link_b_hinge", "lift_barrel_hinge", "tilt_barrel_hinge"}
 
 
@@ -48,7 +48,8 @@ def test_make_registers_and_exposes_model_data(scale: str) -> None:
                 "link_b": masses.link_b, "lift_barrel": spec.lift.barrel_mass, "lift_rod": spec.lift.rod_mass,
                 "tilt_barrel": spec.tilt.barrel_mass, "tilt_rod": spec.tilt.rod_mass}
     assert {b: float(m.body(b).mass[0]) for b in expected} == pytest.approx(expected, rel=1e-12)
-    assert mujoco.mj_getTotalmass(m) == pytest.approx(spec.operating_mass, rel=1e-8)  # empty payload: ~1e-9 bucket
+    # empty payload: ~1e-9 bucket; each supply ~1e-9 of its slide's inertia (all its inertia is its armature)
+    assert mujoco.mj_getTotalmass(m) == pytest.approx(spec.operating_mass, rel=1e-8)
     assert u.data.qpos.shape == (m.nq,) and m.nq == m.nv == len(SLIDES | HINGES)
     assert env.observation_space.shape == (len(OBS_NAMES),)
 
