@@ -5,11 +5,11 @@ bucket fill ≥ 0.85 on every held-out sampled machine in gravel". The machines 
 :meth:`DesignSpace().sample(n, seed) <scaletwin_envs.design_space.DesignSpace.sample>` with a seed no model or
 benchmark uses (default 2: the scaling benchmark trains on seed 0 and tests on seed 1, the design-space tests use
 3 and 4, ``examples/scale_product_line.py`` 7). ``bucketfill-ppo`` never met a design-space machine: it was trained
-on ``WheelLoaderDigRandom-v0`` draws of λ on the ``product_line`` and ``froude`` laws and on the presets (its card,
+on ``WheelLoaderDigRandom-v1`` draws of λ on the ``product_line`` and ``froude`` laws and on the presets (its card,
 ``zoo/checkpoints/bucketfill-ppo/card.json``), one linkage layout and one hydraulic design at every size.
 
 Every (policy, machine, soil, seed) episode runs through :func:`scaletwin_envs.evaluation.evaluate_policies`
-(``WheelLoaderDig-v0`` with the machine's :class:`LoaderSpec`, default env arguments, local worker processes).
+(``WheelLoaderDig-v1`` with the machine's :class:`LoaderSpec`, default env arguments, local worker processes).
 Reported per machine, policy and soil: mean and min bucket fill over the episodes, success rate, cycle time (s and
 Froude times √(L/g)), spill; the machine's λ, operating mass and design figures. Every cell whose worst episode
 fills less than the target is replayed once more, serially and identically, to read why off its trace (peak
@@ -308,7 +308,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         f"Machines: `DesignSpace().sample({args.machines}, seed={args.seed})` (default ranges); no policy was "
         "trained on a design-space machine (`bucketfill-ppo` was trained on law-scaled machines and presets, see "
         f"its card), and seed {args.seed} is used by no other model or benchmark. Policies: {legend}. Episodes: "
-        f"seeds 0..{args.episodes - 1} per machine, policy and soil (`WheelLoaderDig-v0` defaults: 60 Froude "
+        f"seeds 0..{args.episodes - 1} per machine, policy and soil (`WheelLoaderDig-v1` defaults: 60 Froude "
         "times, success = fill ≥ the env's success fill and the cycle completed); deterministic policies.",
     ]
     out = Path(args.out)

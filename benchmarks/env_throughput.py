@@ -1,4 +1,4 @@
-"""Physics throughput of WheelLoaderDig-v0: raw ``mj_step`` on the env's own model vs ``env.step``, side by side.
+"""Physics throughput of WheelLoaderDig-v1: raw ``mj_step`` on the env's own model vs ``env.step``, side by side.
 
 **Ratio.** Every control step of a scripted dig is timed three ways, one right after the other: ``env.step`` of an
 env without the second route to the pin forces (what ``gym.make`` gives when nothing records the episode),

@@ -1,4 +1,4 @@
-"""KPIs of the short loading cycle (WheelLoaderLoadTruck-v0) per dig policy, scale and soil, against published figures.
+"""KPIs of the short loading cycle (WheelLoaderLoadTruck-v1) per dig policy, scale and soil, against published figures.
 
 One episode per (dig, scale, soil, seed): the scripted cycle digging with the scripted dig and with the zoo's learned
 bucket-fill policy, seeds 0, 1, 2 by default, default truck (4 heaped buckets, done at 95 %):
@@ -130,7 +130,7 @@ def write(rows: list[dict[str, Any]]) -> None:
         "",
         "Scripted cycle (`LoadingCyclePolicy`: scripted TUNED dig with a lift-crowd cut on a dug face, boom "
         "raised out of the pile before reversing, proportional pitch hold and ramped lift while carrying, last "
-        "pass shedding over the pile what the truck does not need), `WheelLoaderLoadTruck-v0` "
+        "pass shedding over the pile what the truck does not need), `WheelLoaderLoadTruck-v1` "
         "defaults (truck 4 heaped buckets, done at 95 %, 600 Froude times; faces steeper than repose slump in "
         "cohesionless soil), seeds "
         f"{', '.join(sorted({str(r['seed']) for r in rows}))}. "
@@ -205,7 +205,7 @@ def write(rows: list[dict[str, Any]]) -> None:
     ax[0].legend()
     ax[1].bar(labels, [r["J_per_kg"] for r in rows])
     ax[1].set_ylabel("hydraulic + drive work per kg delivered [J/kg]")
-    fig.suptitle("Loading cycle (s: scripted dig, l: learned dig), WheelLoaderLoadTruck-v0")
+    fig.suptitle("Loading cycle (s: scripted dig, l: learned dig), WheelLoaderLoadTruck-v1")
     fig.tight_layout()
     fig.savefig(OUT / "loading_cycle.png", dpi=110)
 

@@ -1,4 +1,4 @@
-"""Train ``bucketfill-ppo``: one bucket-fill policy for WheelLoaderDig-v0 at every scale and soil.
+"""Train ``bucketfill-ppo``: one bucket-fill policy for WheelLoaderDig-v1 at every scale and soil.
 
 1. Behaviour cloning with DAgger on the tuned scripted cycle (``teacher`` in the config), then the critic is
    fitted to the returns of the cloned policy (:mod:`scaletwin_envs.policies.cloning`).

@@ -9,7 +9,7 @@
   reset: joint Coulomb friction and viscous damping, valve delays, pin clearances, oil-column compliances, the
   payload's mass factor and centre-of-mass offset, and the soil.
 
-With no structure and default parameters the env reproduces ``WheelLoaderDig-v0`` exactly (tested).
+With no structure and default parameters the env reproduces ``WheelLoaderDig-v1`` exactly (tested).
 """
 
 from __future__ import annotations
@@ -90,7 +90,7 @@ class PhysicsParams:
 
 
 class TwinDigEnv(WheelLoaderDigEnv):
-    """``WheelLoaderDig-v0`` with a :class:`Structure` built in and :class:`PhysicsParams` set at run time.
+    """``WheelLoaderDig-v1`` with a :class:`Structure` built in and :class:`PhysicsParams` set at run time.
 
     Built with the legacy actuator servo (``scaletwin_envs.builder.SERVO_KINDS``): its servo-gain, delay and
     compliance parameters edit the cylinders' force-limited velocity actuators, so it keeps them and the timestep

@@ -1,6 +1,6 @@
-"""WheelLoaderLoadTruck-v0: the whole short loading cycle (dig, reverse, haul, raise, dump into a truck, return).
+"""WheelLoaderLoadTruck-v1: the whole short loading cycle (dig, reverse, haul, raise, dump into a truck, return).
 
-The machine and the pile are those of ``WheelLoaderDig-v0`` (same scales, laws, distortions and soils; soil
+The machine and the pile are those of ``WheelLoaderDig-v1`` (same scales, laws, distortions and soils; soil
 resistance, bucket fill and the combined bucket + load body reused from it), with the dump-capable tilt linkage of
 :mod:`scaletwin_envs.envs.dump_linkage` (the presets' linkages cannot tip the bucket forward above ground height).
 
@@ -64,7 +64,8 @@ Version history:
     (0.126 ms), the WA475's whole. The first pass's dig is not converged at these steps: halving them moves its
     F21 by 2.8 % (ER12), 1.7 % (mini), 2.4 % (WA475), where a quarter of the Froude step gives 0.12 %, 0.48 %,
     0.57 % (scripted cycle, seed 0, commands replayed open loop); the tilt servo relays at relief (known limit).
-    v0 (2026-11-26, servo branch): the cylinders' servo is ``WheelLoaderDig-v0``'s constraint servo
+    v1 (2026-11-26, with ``WheelLoaderDig-v1``; ``WheelLoaderLoadTruck-v0`` is no longer registered): the cylinders'
+    servo is ``WheelLoaderDig-v1``'s constraint servo
     (:data:`scaletwin_envs.builder.SERVO_KINDS`), tuned to the variant's tilt slide as built
     (:func:`scaletwin_envs.builder.tune_relief`); the timestep is the Froude step at every scale (ER12 1 ms, mini
     0.378 ms, WA475 1.414 ms), where halving it moves the first pass's dig F21 by 0.33 %, 0.22 %, 1.0 % (scripted
@@ -93,7 +94,7 @@ from scaletwin_envs.specs.laws import PRODUCT_LINE, ScalingLaw
 from scaletwin_envs.specs.loader import GRAVITY, LoaderSpec, make_loader
 from scaletwin_envs.specs.soil import SoilSpec, make_soil
 
-ENV_ID = "WheelLoaderLoadTruck-v0"
+ENV_ID = "WheelLoaderLoadTruck-v1"
 OBS_NAMES = (*DIG_OBS_NAMES, "leg", "edge_x_to_truck", "clearance", "truck_fill", "to_apex")
 OBS_INDEX = {n: i for i, n in enumerate(OBS_NAMES)}
 REWARD_TERMS = ("payload", "time", "energy", "spill", "overload")
@@ -186,7 +187,7 @@ class WheelLoaderLoadTruckEnv(WheelLoaderDigEnv):
 
     Args:
         scale, law, distortion, soil, pile_distance, pile_height, frame_skip, external_force_substeps,
-            two_route_check, render_mode, width, height, timestep: as in ``WheelLoaderDig-v0`` (the default timestep
+            two_route_check, render_mode, width, height, timestep: as in ``WheelLoaderDig-v1`` (the default timestep
             reads the variant's tilt slide with its oil column, see ``_tilt_oil_ratio``).
         dump_linkage: build the dump-capable tilt linkage (:func:`dump_capable`); False keeps the machine's own,
             which cannot dump above ground height.

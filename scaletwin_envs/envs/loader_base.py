@@ -225,6 +225,8 @@ class LoaderEnv(MujocoEnv):
         warnings_before = self._bad_state_warnings()
         for k in range(self.frame_skip // self.external_force_substeps):
             if k:  # mj_step leaves the kinematics of the start of its last step: the soil must see the state now
+                if self._bad_state_warnings() > warnings_before:  # not the soil force of a diverged state
+                    break
                 self._refresh_kinematics()
             self._apply_external_forces()
             mujoco.mj_step(self.model, self.data, nstep=self.external_force_substeps)

@@ -1,15 +1,15 @@
 """Domain randomisation for training one policy at every size: a new machine and soil every episode.
 
-:class:`RandomizedDigEnv` re-makes the inner ``WheelLoaderDig-v0`` on every ``reset`` with keyword arguments
+:class:`RandomizedDigEnv` re-makes the inner ``WheelLoaderDig-v1`` on every ``reset`` with keyword arguments
 drawn by a :class:`ScaleSoilSampler`: a preset machine with some probability, otherwise a length ratio
 log-uniform over the supported range under a scaling law drawn from ``laws``; the soil uniform over the named
 soils. Building the env costs ~3 ms, a few control steps. Everything is drawn from one generator seeded by
 ``reset(seed=...)``, so a seeded run is reproducible episode by episode.
 
-Registered as ``WheelLoaderDigRandom-v0`` (entry point :func:`make_randomized_dig_env`), with the sampler's fields
+Registered as ``WheelLoaderDigRandom-v1`` (entry point :func:`make_randomized_dig_env`), with the sampler's fields
 and the inner env's arguments as keyword arguments of ``gym.make``::
 
-    env = gym.make("WheelLoaderDigRandom-v0", scale_range=(0.1, 2.0), soils=("sand", "gravel"),
+    env = gym.make("WheelLoaderDigRandom-v1", scale_range=(0.1, 2.0), soils=("sand", "gravel"),
                    laws=("product_line", "froude"), two_route_check=False)
 
 A drawn law applies to drawn length ratios only; a drawn preset is built as it is (``info["law"]`` still reports
@@ -33,7 +33,7 @@ from scaletwin_envs.specs.loader import make_loader
 from scaletwin_envs.specs.presets import PRESETS
 from scaletwin_envs.specs.soil import SOILS
 
-#: The length ratios (vs the ER12) that ``WheelLoaderDig-v0`` accepts.
+#: The length ratios (vs the ER12) that ``WheelLoaderDig-v1`` accepts.
 SCALE_RANGE = (0.05, 3.0)
 #: Keyword arguments of :func:`make_randomized_dig_env` that configure the :class:`ScaleSoilSampler`.
 SAMPLER_FIELDS = ("scale_range", "soils", "laws", "presets", "preset_probability")
@@ -77,7 +77,7 @@ class ScaleSoilSampler:
 
 
 class RandomizedDigEnv(gym.Wrapper):
-    """``WheelLoaderDig-v0`` re-made with sampled scale and soil on every reset (see module docstring).
+    """``WheelLoaderDig-v1`` re-made with sampled scale and soil on every reset (see module docstring).
 
     Args:
         sampler: what to draw.  env_kwargs: further env arguments, the same every episode.
@@ -115,7 +115,7 @@ class RandomizedDigEnv(gym.Wrapper):
 
 def make_randomized_dig_env(sampler: ScaleSoilSampler | None = None, env_kwargs: Mapping[str, Any] | None = None,
                             seed: int | None = None, **kwargs: Any) -> RandomizedDigEnv:
-    """Entry point of ``WheelLoaderDigRandom-v0``: a :class:`RandomizedDigEnv` from flat keyword arguments.
+    """Entry point of ``WheelLoaderDigRandom-v1``: a :class:`RandomizedDigEnv` from flat keyword arguments.
 
     Args:
         sampler: a ready sampler; or give its fields (:data:`SAMPLER_FIELDS`: ``scale_range`` as length ratios vs the

@@ -1,4 +1,4 @@
-"""A scripted short loading cycle for ``WheelLoaderLoadTruck-v0``, built on any bucket-fill (dig) policy.
+"""A scripted short loading cycle for ``WheelLoaderLoadTruck-v1``, built on any bucket-fill (dig) policy.
 
 The dig is delegated to a dig policy acting on the dig view of the observation (entries 0–18, the dig env's
 :data:`~scaletwin_envs.envs.wheel_loader_dig.OBS_NAMES`): the scripted :class:`ScriptedDigPolicy` (with the

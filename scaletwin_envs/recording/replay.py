@@ -42,7 +42,7 @@ def make_twin(provenance: Provenance, **overrides: Any) -> gym.Env:
     """The env described by ``provenance`` (machine spec, soil, env arguments), via ``gym.make``.
 
     Args:
-        provenance: from a recording; needs ``machine`` and a registered ``env_id`` (default WheelLoaderDig-v0).
+        provenance: from a recording; needs ``machine`` and a registered ``env_id`` (default WheelLoaderDig-v1).
         overrides: constructor arguments replacing the recorded ones (e.g. ``render_mode``).
 
     Raises:
@@ -53,7 +53,12 @@ def make_twin(provenance: Provenance, **overrides: Any) -> gym.Env:
         raise ValueError("the recording's provenance has no machine spec; pass the twin as env=")
     env_id = provenance.env_id or scaletwin_envs.ENV_ID
     if env_id not in gym.registry:
-        raise ValueError(f"env id {env_id!r} of the recording is not registered (known: {sorted(gym.registry)})")
+        family = env_id.rsplit("-v", 1)[0]
+        newer = sorted(k for k in gym.registry if k.rsplit("-v", 1)[0] == family)
+        hint = (f"; its dynamics were replaced by {', '.join(newer)} (see that env's version history): a replay "
+                "there is no replay of this recording's physics, pass env= to compare anyway") if newer else (
+                f" (known: {sorted(gym.registry)})")
+        raise ValueError(f"env id {env_id!r} of the recording is not registered{hint}")
     kwargs: dict[str, Any] = {**provenance.env_kwargs, "scale": spec}
     soil = provenance.soil_spec()
     if soil is not None:

@@ -51,7 +51,7 @@ SIGNAL_PANELS: dict[str, tuple[str, ...]] = {
     "Soil force": ("R_x", "R_z"),
     "Cylinders": ("lift_extension", "tilt_extension", "lift_speed", "tilt_speed", "p_lift", "p_tilt"),
 }
-#: The tab of a loading-cycle recording (``WheelLoaderLoadTruck-v0``): the truck's payload against its target, the
+#: The tab of a loading-cycle recording (``WheelLoaderLoadTruck-v1``): the truck's payload against its target, the
 #: material returned to the pile, the payload's centre of mass and the passes.
 TRUCK_PANEL: dict[str, tuple[str, ...]] = {
     "Truck": ("truck_payload", "target_payload", "returned_mass", "truck_com_x", "truck_com_z", "passes"),

@@ -34,7 +34,7 @@ EPISODE_NUMERIC = ("fill_factor", "spilled_mass", "hydraulic_work", "reward")
 EPISODE_UNITS: dict[str, str] = {
     "fill_factor": "1", "spilled_mass": "kg", "hydraulic_work": "J", "reward": "1", "phase": NON_QUANTITY,
 }
-#: Columns of the loading-cycle task (``WheelLoaderLoadTruck-v0``), after :data:`EPISODE_UNITS`, in recordings of
+#: Columns of the loading-cycle task (``WheelLoaderLoadTruck-v1``), after :data:`EPISODE_UNITS`, in recordings of
 #: envs whose reset ``info`` has these keys (recordings of other envs have none of them).
 TRUCK_UNITS: dict[str, str] = {
     "truck_payload": "kg", "target_payload": "kg", "truck_com_x": "m", "truck_com_z": "m", "passes": "1",

@@ -95,7 +95,7 @@ def headline_rows(res: ReproduceResult) -> list[tuple[str, str, str, str, str]]:
 
 NOTES = """## Method notes and deviations from the paper
 
-* **Data.** The paper's twin (Algoryx) is replaced by `WheelLoaderDig-v0` (MuJoCo). Training machines: ER12 and
+* **Data.** The paper's twin (Algoryx) is replaced by `WheelLoaderDig-v1` (MuJoCo). Training machines: ER12 and
   WA475, scripted dig cycles over four soils and three pile heights, plus *static-hold* episodes (a dig, then the
   loaded bucket held still at random carry poses), so that near-static rows like the miniature's come from the
   simulator; the miniature's rows come from the analytical statics only (train and validation independent).

@@ -148,7 +148,7 @@ def episode() -> Episode:
     from scaletwin_envs.policies.scripted import ScriptedDigPolicy
     from scaletwin_envs.recording.recorder import record_episode
 
-    env = gym.make("WheelLoaderDig-v0", scale="mini")
+    env = gym.make("WheelLoaderDig-v1", scale="mini")
     try:
         rec = record_episode(env, ScriptedDigPolicy(), seed=0, max_steps=STEPS)
     finally:

@@ -1,4 +1,4 @@
-"""The twin env with no planted physics reproduces WheelLoaderDig-v0 exactly (built, as the twin is, with the legacy
+"""The twin env with no planted physics reproduces WheelLoaderDig-v1 exactly (built, as the twin is, with the legacy
 actuator servo, ``scaletwin_envs.builder.SERVO_KINDS``)."""
 
 from __future__ import annotations

@@ -24,7 +24,7 @@ def test_piston_force_is_the_transmitted_force_where_the_servo_chattered() -> No
     jumped between its limits on > 2 % of the control steps): the servo's raw force no longer does, the reported
     Pf_tilt follows route 2 (the force the linkage receives) and, through the massless-linkage ratio, F21."""
     spec = DesignSpace().sample_one(1, 7).spec
-    env = gym.make("WheelLoaderDig-v0", scale=spec, soil="gravel", two_route_check=True, max_episode_time=90.0)
+    env = gym.make("WheelLoaderDig-v1", scale=spec, soil="gravel", two_route_check=True, max_episode_time=90.0)
     policy = make_hold_policy(seed=2_000_100, n_poses=3)
     obs, _ = env.reset(seed=5)
     raw, piston, route2, f21, linkage = [], [], [], [], []

@@ -1,4 +1,4 @@
-"""WheelLoaderDig-v0 as a Gymnasium environment: API, determinism, bad input, blow-ups."""
+"""WheelLoaderDig-v1 as a Gymnasium environment: API, determinism, bad input, blow-ups."""
 
 from __future__ import annotations
 
@@ -32,7 +32,7 @@ HINGES = {"boom_hinge", "bucket_hinge", "bell_crank_hinge", "link_b_hinge", "lif
 @pytest.mark.parametrize("scale", ["mini", "wa475"])
 def test_make_registers_and_exposes_model_data(scale: str) -> None:
     """The registered id builds the Z-bar loader: its bodies, joints and sites, each body with the spec's mass."""
-    env = gym.make("scaletwin_envs:WheelLoaderDig-v0", scale=scale, soil="sand")
+    env = gym.make("scaletwin_envs:WheelLoaderDig-v1", scale=scale, soil="sand")
     u, spec = env.unwrapped, scaletwin_envs.make_loader(scale)
     m = u.model
     assert u.loader == spec and u.soil == scaletwin_envs.make_soil("sand")

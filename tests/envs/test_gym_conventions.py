@@ -1,4 +1,4 @@
-"""Gymnasium conventions of WheelLoaderDig-v0: horizon, info schema, finished episodes, rendering without a display,
+"""Gymnasium conventions of WheelLoaderDig-v1: horizon, info schema, finished episodes, rendering without a display,
 reset options, the randomised-scale env, out-of-range actions and ``law`` with fixed machines."""
 
 from __future__ import annotations
@@ -269,3 +269,10 @@ def test_the_offscreen_back_end_is_one_whose_library_is_there() -> None:
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=environ, timeout=120)
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.strip() == str(offscreen_gl())
+
+
+def test_the_old_version_is_refused_with_a_pointer_to_the_new() -> None:
+    """v1 changed the dynamics (servo, soil refresh): v0 is not registered, and gymnasium says which version is."""
+    with pytest.raises(gym.error.DeprecatedEnv, match="WheelLoaderDig-v1"):
+        gym.make("WheelLoaderDig-v0")
+    assert scaletwin_envs.ENV_ID == "WheelLoaderDig-v1"

@@ -1,4 +1,4 @@
-"""WheelLoaderLoadTruck-v0: mass conservation, where dumped material lands, carry statics, bucket stops, the scripted
+"""WheelLoaderLoadTruck-v1: mass conservation, where dumped material lands, carry statics, bucket stops, the scripted
 loading cycle, checkers, determinism, bad input, sim errors, recordings."""
 
 from __future__ import annotations

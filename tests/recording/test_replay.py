@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import gymnasium as gym
 import mujoco
 import numpy as np
@@ -58,6 +60,9 @@ def test_replay_in_a_given_env_and_errors():
         replay(type(rec)(rec.data, rec.units, type(rec.provenance)(machine=rec.provenance.machine)))
     with pytest.raises(ValueError, match="no machine spec"):
         make_twin(type(rec.provenance)())
+    old = dataclasses.replace(rec.provenance, env_id="WheelLoaderDig-v0")  # a recording made before v1's physics
+    with pytest.raises(ValueError, match="replaced by WheelLoaderDig-v1"):
+        make_twin(old)
 
 
 def test_seed_none_draws_and_stores_a_seed():
