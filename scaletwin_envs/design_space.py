@@ -79,6 +79,9 @@ ASSEMBLY_GRID = 9
 DEAD_CENTRE_GRID = 17
 #: Draws tried per sample before giving up (a design space this narrow never needs more than a few).
 MAX_DRAWS = 200
+#: Decimal digits (m) the solved cylinder lengths of a design are rounded to: 1 nm, far below any physical effect,
+#: far above the last-bit differences of the trigonometry between numpy/libm builds.
+LENGTH_DIGITS = 9
 
 
 def stroke_poses(spec: LoaderSpec, n: int = ASSEMBLY_GRID) -> list[LinkagePose]:
@@ -332,19 +335,24 @@ def build_design(distortion: Mapping[str, float], name: str = "design") -> Loade
     poses = reference_workspace()
     b0, b1 = min(b for b, _ in poses), max(b for b, _ in poses)
     stretch = d.get("lift_range", 1.0)
+    # Solved lengths are rounded to 1 nm (LENGTH_DIGITS): the solver's last bits differ between numpy/libm builds
+    # (seen: 10 of 40 drawn machines' strokes 1-4e-16 m apart on another host), and a spec is part of the key its
+    # recordings are filed under, so unrounded a shared data set would not be found, and be simulated again.
     try:
-        lift_ends = sorted((solve_pose(geo, b0, 0.0).lift_length,
-                            solve_pose(geo, b0 + (b1 - b0) * stretch, 0.0).lift_length))
-        tilts = [solve_pose(geo, b0 + (b - b0) * stretch, k).tilt_length for b, k in poses]
+        lift_ends = sorted((round(solve_pose(geo, b0, 0.0).lift_length, LENGTH_DIGITS),
+                            round(solve_pose(geo, b0 + (b1 - b0) * stretch, 0.0).lift_length, LENGTH_DIGITS)))
+        tilts = [round(solve_pose(geo, b0 + (b - b0) * stretch, k).tilt_length, LENGTH_DIGITS) for b, k in poses]
     except LinkageUnreachable as exc:
         raise ValueError(f"design does not assemble over the dig workspace: {exc}") from exc
     base_tilts = [solve_pose(base.geometry, b, k).tilt_length for b, k in poses]
-    lift = replace(base.lift, closed_length=lift_ends[0], stroke=lift_ends[1] - lift_ends[0])
+    lift = replace(base.lift, closed_length=lift_ends[0],
+                   stroke=round(lift_ends[1] - lift_ends[0], LENGTH_DIGITS))
     # the law machine's tilt stroke reaches past its workspace's longest pose (the toggle side): keep that
     # proportion, so that a design without distortion is the law's machine
     span = (max(tilts) - min(tilts)) / (max(base_tilts) - min(base_tilts))
-    tilt = replace(base.tilt, closed_length=min(tilts) + (base.tilt.closed_length - min(base_tilts)),
-                   stroke=base.tilt.stroke * span)
+    tilt = replace(base.tilt, closed_length=round(min(tilts) + (base.tilt.closed_length - min(base_tilts)),
+                                                  LENGTH_DIGITS),
+                   stroke=round(base.tilt.stroke * span, LENGTH_DIGITS))
     lift = _resize_cylinder(lift, d.get("lift_bore", 1.0), d.get("pressure", 1.0), d.get("lift_flow", 1.0),
                             base.lift.stroke)
     tilt = _resize_cylinder(tilt, d.get("tilt_bore", 1.0), d.get("pressure", 1.0), d.get("tilt_flow", 1.0),
