@@ -81,9 +81,12 @@ def test_start_angles_solved_from_the_extensions_when_a_log_lacks_them(
 
 
 def test_the_start_never_fits_worse_than_the_nominal_one() -> None:
-    """A log without seed under strong AR(1) noise (benchmark seed 14 case 20: a 200 Hz null log, 2.3 % of range)
-    where the search from the first rows' angles ended at a misfit of 30.6 against the nominal start's 5.4: the
-    nominal start is returned (no filter, no offset), with draws around it."""
+    """A log without seed under strong AR(1) noise (benchmark seed 14 case 20: a 200 Hz null log, 2.3 % of range).
+    With v0's twin the search from the first rows' angles ended there at a misfit of 30.6 against the nominal
+    start's 5.4, and the guard returned the nominal start; with v1's (the soil force read at the state it acts on)
+    it ends at 4.99 against 5.40, and none of 7 strong-noise field logs scanned sends it off. What must hold either
+    way: the estimate fits the first rows at least as well as the nominal start, and when it is the nominal start,
+    it carries no filter and no offset."""
     case = make_case(20, 14)
     nominal, control_dt = simulate(case.twin, [], case.twin.seed)
     ranges = {k: channel_range(v) for k, v in nominal.signals.items()}
@@ -91,8 +94,9 @@ def test_the_start_never_fits_worse_than_the_nominal_one() -> None:
         rec = field_recording(nominal, control_dt, case.noise, case.condition, ranges, 0, Path(tmp))
         twin = TwinSpec.parse(twin_file(case.twin, Path(tmp)).as_posix(), None)
     est = estimate_start(rec.noisy, SerialRunner(twin), profile_filter=True, fit_offset=True)
-    assert est.misfit == est.misfit_default  # the nominal start's own misfit: it was returned
-    got = dict(est.options)
-    assert (got["boom_angle"], got["bucket_angle"]) == (0.015, 0.0)  # the env's centre (reset_noise_scale 1)
-    assert got["repose_angle"] == twin.soil.repose_angle and est.offset == 0.0 and est.sensor_tau == 0.0
+    assert est.misfit <= est.misfit_default
+    if est.misfit == est.misfit_default:
+        got = dict(est.options)
+        assert (got["boom_angle"], got["bucket_angle"]) == (0.015, 0.0)  # the env's centre (reset_noise_scale 1)
+        assert got["repose_angle"] == twin.soil.repose_angle and est.offset == 0.0 and est.sensor_tau == 0.0
     assert len(est.draws) > 0
