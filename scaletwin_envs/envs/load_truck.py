@@ -70,7 +70,8 @@ Version history:
     (:func:`scaletwin_envs.builder.tune_relief`); the timestep is the Froude step at every scale (ER12 1 ms, mini
     0.378 ms, WA475 1.414 ms), where halving it moves the first pass's dig F21 by 0.33 %, 0.22 %, 1.0 % (scripted
     cycle in gravel, seed 0, dig rows up to the first dump, commands replayed open loop; 0.27 %, 1.07 %, 2.38 % at
-    the old steps, measured the same way).
+    the old steps, measured the same way; both before the soil-refresh fix of ``WheelLoaderDig-v1``, which applies
+    here too).
 """
 
 from __future__ import annotations

@@ -75,10 +75,10 @@ Version history:
     velocity source at the commanded speed), softened to the same gain and bounded by the same relief forces
     (:data:`scaletwin_envs.builder.SERVO_KINDS`, :func:`scaletwin_envs.builder.tune_relief`): MuJoCo's solver
     bounds the force inside the solve and the servo stays implicit at relief, so it no longer relays. The timestep
-    is the Froude step everywhere (the mini's 0.378 ms again); halving it moves F21 over the scripted dig by < 1 %
-    at 24 of the 26 sampled machines (all three presets; the two smallest design-space samples 1.2-1.3 %, first
-    order in the step). Against the code before: F21 over the scripted dig 0.06 % (ER12), 0.47 % (WA475), 0.58 %
-    (mini, against 0.126 ms) mean absolute; on carrying holds, where the old servo relayed at relief on 8 % of the
+    is the Froude step everywhere (the mini's 0.378 ms again); halving it moves F21 over the scripted dig by
+    0.01-0.15 % at all 26 sampled machines (with the soil refresh below; 24 of 26 under 1 % without it). Against
+    the code before (servo alone): F21 over the scripted dig 0.06 % (ER12), 0.47 % (WA475), 0.58 % (mini, against
+    0.126 ms) mean absolute; on carrying holds, where the old servo relayed at relief on 8 % of the
     ER12's control steps, 4-8 %, the new converged (halving the step: 0.2-0.5 % against 6-9 % before). The
     observation's servo forces are the relief tendon's force plus the relief centre, with no relay (the policies
     were trained on the relaying output). Two more slides (``lift_supply``, ``tilt_supply``) and two constant-force
