@@ -93,6 +93,16 @@ MIN_OFFSET_STEPS = 0.25
 #: nearly all of the kinematic residual it causes, while a physical discrepancy (a slower cylinder, friction) is
 #: only partly imitated by a shift and must be left to the diagnosis.
 MIN_OFFSET_GAIN = 0.5
+#: The machine's independent circuits and the channels each one moves. A time offset of the whole log shifts every
+#: circuit alike; an actuator's dead time shifts its own circuit only; so an offset is one of the log only when at
+#: least two circuits each show it (:func:`circuits_agree`). The drive is the circuit that moves first in a dig
+#: (the machine drives into the pile before the boom or the bucket moves much), so a log's first rows can show an
+#: offset on it and on the tilt while the lift has not moved yet.
+CIRCUITS: dict[str, tuple[str, ...]] = {"lift": ("lift_extension", "boom_angle", "lift_speed"),
+                                         "tilt": ("tilt_extension", "bucket_pitch", "tilt_speed"),
+                                         "drive": ("travel_speed",)}
+#: Circuits agree on an offset when their own estimates lie within this many control steps of each other.
+OFFSET_AGREEMENT = 0.5
 #: Sensor time constants searched (s): 0 to 1 s covers load pins, pressure transducers and inclinometers.
 TAU_MAX = 1.0
 #: A sensor filter is reported (tau > 0) only when it removes at least half of the residual: a filter smooths the
@@ -544,6 +554,21 @@ def estimate_offset(real: Mapping[str, np.ndarray], twin: Mapping[str, np.ndarra
     c_zero = cost(0.0)
     significant = (abs(s_best) >= MIN_OFFSET_STEPS * dt) and c_best <= (1.0 - MIN_OFFSET_GAIN) * c_zero
     return OffsetEstimate(s_best, bool(significant), c_zero, c_best, names)
+
+
+def circuit_offsets(real: Mapping[str, np.ndarray], twin: Mapping[str, np.ndarray], dt: float,
+                    scale: Mapping[str, float] | None = None) -> dict[str, OffsetEstimate]:
+    """Each circuit's own offset (:data:`CIRCUITS`; :func:`estimate_offset` on its channels)."""
+    return {name: estimate_offset(real, twin, dt, channels, scale=scale) for name, channels in CIRCUITS.items()}
+
+
+def circuits_agree(estimates: Mapping[str, OffsetEstimate], dt: float, offset: float | None = None) -> bool:
+    """Whether an offset is one of the whole log: at least two circuits show a significant offset, all the
+    significant ones within :data:`OFFSET_AGREEMENT` control steps of each other (and of ``offset``, s, if given).
+    A circuit that did not move in the rows compared shows no offset and vetoes nothing."""
+    seen = [e.offset for e in estimates.values() if e.significant]
+    seen_all = [*seen, offset] if offset is not None else seen
+    return len(seen) >= 2 and max(seen_all) - min(seen_all) <= OFFSET_AGREEMENT * dt
 
 
 def delayed(x: np.ndarray, dt: float, offset: float) -> np.ndarray:

@@ -4,9 +4,9 @@ time offset between the log's signals and its commands.
 :func:`align` takes the analysed episode and the nominal twin and returns both as they should be compared, plus
 an :class:`Alignment` saying what was estimated (reported in the diagnosis). Each estimate is applied only when it
 is worth it (``estimate_offset``'s and ``estimate_sensor_tau``'s own thresholds; for a log without seed, the
-joint fit's, see ``estimate_start``); an offset found against the twin is applied only when the lift and the tilt
-circuits agree on it (:data:`OFFSET_AGREEMENT`): a dead time in one actuator, which the catalogue names, moves one
-circuit only.
+joint fit's, see ``estimate_start``); an offset found against the twin is applied only when two of the machine's
+circuits (lift, tilt, drive) show it alike (:func:`~discrepancy.data.fieldlog.circuits_agree`): a dead time in one
+actuator, which the catalogue names, moves one circuit only.
 """
 
 from __future__ import annotations
@@ -20,6 +20,8 @@ import numpy as np
 from discrepancy.data.episode import EpisodeData, signal_spread
 from discrepancy.data.fieldlog import (
     OffsetEstimate,
+    circuit_offsets,
+    circuits_agree,
     estimate_channel_taus,
     estimate_offset,
     estimate_sensor_tau,
@@ -30,9 +32,6 @@ from discrepancy.twin.runner import Runner
 from discrepancy.twin.spec import SimResult, TwinSpec
 from discrepancy.twin.start import StartEstimate, estimate_start
 
-LIFT = ("lift_extension", "boom_angle", "lift_speed")  # channels moved by the lift circuit
-TILT = ("tilt_extension", "bucket_pitch", "tilt_speed")  # ... by the tilt circuit
-OFFSET_AGREEMENT = 0.5  # the circuits' offsets may differ by this many control steps
 TOLERANCE = 0.25  # control steps: a channel's own filter time constant this close to the common one is the common one
 
 
@@ -59,16 +58,15 @@ def _filtered(result: SimResult, dt: float, tau: float) -> dict:
 
 def _offset(ep: EpisodeData, twin: dict, notes: list[str], scale: dict[str, float] | None = None
             ) -> tuple[OffsetEstimate, bool]:
-    """The log's offset against ``twin`` and whether to undo it (both circuits agree; see the module); ``scale``:
+    """The log's offset against ``twin`` and whether to undo it (two circuits agree; see the module); ``scale``:
     the channels' normalisers (see ``estimate_offset``)."""
     offset = estimate_offset(ep.signals, twin, ep.dt, scale=scale)
     if not offset.significant:
         return offset, False
-    lift = estimate_offset(ep.signals, twin, ep.dt, LIFT, scale=scale)
-    tilt = estimate_offset(ep.signals, twin, ep.dt, TILT, scale=scale)
-    if lift.significant and tilt.significant and abs(lift.offset - tilt.offset) <= OFFSET_AGREEMENT * ep.dt:
+    per = circuit_offsets(ep.signals, twin, ep.dt, scale)
+    if circuits_agree(per, ep.dt, offset.offset):
         return offset, True
-    notes.append(f"the kinematic channels lag the commands by {offset.offset:.3g} s, but the lift and tilt circuits "
+    notes.append(f"the kinematic channels lag the commands by {offset.offset:.3g} s, but the machine's circuits "
                  "disagree: left to the diagnosis (an actuator dead time?)")
     return offset, False
 

@@ -13,8 +13,12 @@ from scipy.signal import lfilter
 from discrepancy import RecordingError, load_episode
 from discrepancy.data.episode import EpisodeData, from_recording, signal_spread, to_recording
 from discrepancy.data.fieldlog import (
+    CIRCUITS,
     MAX_GAP_STEPS,
+    OffsetEstimate,
     bridge_gaps,
+    circuit_offsets,
+    circuits_agree,
     control_grid,
     delayed,
     estimate_channel_taus,
@@ -274,6 +278,35 @@ def test_known_time_offset_is_recovered(clean: EpisodeData, shift: float) -> Non
     err = np.abs(real["lift_extension"] - seen) / spread["lift_extension"]
     before = np.abs(real["lift_extension"] - twin["lift_extension"]) / spread["lift_extension"]
     assert np.sqrt(np.mean(err[3:-3] ** 2)) < 0.3 * np.sqrt(np.mean(before[3:-3] ** 2))
+
+
+def test_an_offset_of_the_log_moves_every_circuit_and_a_dead_time_only_its_own(clean: EpisodeData) -> None:
+    """A log whose clock runs 0.2 s behind shows the same offset on the lift, the tilt and the drive; a dead time in
+    the tilt actuator alone (the tilt circuit's channels late, the rest on time) shows on the tilt only, and is not
+    taken for an offset of the log."""
+    twin = clean.signals
+    spread = signal_spread(twin)
+    log = {k: PchipInterpolator(clean.time, v)(clean.time - 0.2) for k, v in twin.items()}
+    per = circuit_offsets(log, twin, DT, spread)
+    assert set(per) == set(CIRCUITS) and all(e.significant for e in per.values())
+    assert all(e.offset == pytest.approx(0.2, abs=0.02) for e in per.values())
+    assert circuits_agree(per, DT, 0.2)
+    assert not circuits_agree(per, DT, 0.35)  # not the offset they show
+    dead = {k: (log[k] if k in CIRCUITS["tilt"] else v) for k, v in twin.items()}
+    per = circuit_offsets(dead, twin, DT, spread)
+    assert per["tilt"].significant and not per["lift"].significant and not per["drive"].significant
+    assert not circuits_agree(per, DT)
+
+
+def test_circuits_that_did_not_move_veto_nothing() -> None:
+    """Two circuits that agree make an offset; a circuit with no significant offset (it had not moved) does not
+    veto it; two that disagree by more than half a control step do."""
+    def est(offset: float, significant: bool = True) -> OffsetEstimate:
+        return OffsetEstimate(offset, significant, 1.0, 0.1 if significant else 1.0, ())
+
+    assert circuits_agree({"lift": est(0.0, False), "tilt": est(-0.10), "drive": est(-0.09)}, DT, -0.10)
+    assert not circuits_agree({"lift": est(0.0, False), "tilt": est(-0.10), "drive": est(0.0, False)}, DT)
+    assert not circuits_agree({"lift": est(0.05), "tilt": est(-0.10), "drive": est(-0.09)}, DT)
 
 
 # -- sensor filter -------------------------------------------------------------------------------------------
