@@ -39,8 +39,10 @@ def _table(soil: SoilSpec) -> tuple[list[float], list[float]]:
     lin = np.empty_like(_RAKES)
     for k, rake in enumerate(_RAKES):
         ng, nc, _, nca = n_factors(rake, soil.friction_angle, soil.wall_friction_angle, _BETAS)
-        # Minimise at a reference depth of 1 m; the minimising β barely moves with depth.
-        total = soil.unit_weight * ng + soil.cohesion * nc + soil.adhesion * nca
+        # Minimise at a reference depth of 1 m; the minimising β barely moves with depth. A wedge that does not
+        # exist has infinite factors, and 0 × inf (a soil without cohesion or adhesion) is NaN: masked below.
+        with np.errstate(invalid="ignore"):
+            total = soil.unit_weight * ng + soil.cohesion * nc + soil.adhesion * nca
         valid = np.isfinite(total) & (ng > 0)
         best = int(np.argmin(np.where(valid, total, np.inf)))
         quad[k] = soil.unit_weight * ng[best]
