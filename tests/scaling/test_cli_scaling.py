@@ -208,8 +208,9 @@ def test_full_reproduction(tmp_path: Path) -> None:
     # Since 2026-11-25 the ER12, the WA475 and the miniature are three designs, so issue 5's targets (R² ≥ 0.99,
     # miniature ≤ 2 %, set when they were one layout at three sizes) are out of the paper method's reach. With
     # WheelLoaderDig-v1 (2026-11-26): FFNN R² 0.974 (+ pose 0.984), GRUs 0.987 / 0.980, miniature FFNN 19.2 %
-    # (+ pose 13.1 %) against direct-Pi 11.7 % from the seed's source row, a carrying hold whose π1 happens to lie
-    # near the miniature's; over the 8 source rows drawn, FFNN 18.1 % against direct-Pi 38.9 %. What must hold: δ1
+    # (+ pose 13.1 %) against direct-Pi 11.7 % from the seed's source row (direct-Pi 8.8-12.7 % from the drawn rows
+    # with π1 0.52-0.66, 47-60 % from those with 0.87-0.94); over the 8 rows, FFNN 18.1 % against direct-Pi
+    # 38.9 %. What must hold: δ1
     # learnt well on held-out cycles of the training machines, and the learnt models beating direct-Pi on the
     # miniature over the source rows drawn (the paper's claim, Fig. 12), not from every single row
     assert metrics["models"]["ffnn"]["r2_dig"] > 0.93
