@@ -46,11 +46,10 @@ PILE_COLUMNS = 48  # visual boxes drawing the pile surface
 # that unclamped it is exactly the velocity servo of gain servo_gain (tune_relief). MuJoCo's constraint solver
 # decides whether the relief is open with the end-of-step speeds, the force is bounded inside the solve, and the
 # servo is integrated implicitly whether or not it is at relief: no relay, at any timestep. The scripted dig
-# converges at the Froude step (halving it moves F21 by < 1 %) at 24 of the 26 machines of
-# benchmarks/env_throughput.py --servo-sweep (the mini: 0.18 % at 54 servo time constants per step), the other two
-# (the smallest design-space samples, λ 0.10-0.12) at 1.2-1.3 %, halving with each halving of the step (first-order
-# error in the curl's break-out, below relief, no relay). Against the legacy servo at its rule's steps F21 over the
-# scripted dig moves by 0.06 % (ER12), 0.47 % (WA475), 0.58 % (mini).
+# converges at the Froude step at all 26 machines of benchmarks/env_throughput.py --servo-sweep: halving it moves
+# F21 by 0.01-0.15 % (the mini: 0.03 % at 54 servo time constants per step), with the soil force read at the state
+# it acts on (envs.loader_base; before that fix two of the 26 were 1.2-1.3 % off). Against the legacy servo at its
+# rule's steps F21 over the scripted dig moved by 0.06 % (ER12), 0.47 % (WA475), 0.58 % (mini).
 # "actuator" (legacy, kept for the discrepancy twin, whose structure variants edit that actuator): a force-limited
 # velocity actuator on the slide. While it is clamped at relief MuJoCo integrates its force explicitly (it drops
 # the servo's implicit damping), and one step changes the slide's speed by up to dt / τ times the speed band in
