@@ -9,7 +9,8 @@
   reset: joint Coulomb friction and viscous damping, valve delays, pin clearances, oil-column compliances, the
   payload's mass factor and centre-of-mass offset, and the soil.
 
-With no structure and default parameters the env reproduces ``WheelLoaderDig-v1`` exactly (tested).
+With no structure and default parameters the env reproduces ``WheelLoaderDig-v1`` built with the legacy actuator
+servo exactly (tested; the registered env uses the constraint servo, see :class:`TwinDigEnv`).
 """
 
 from __future__ import annotations
