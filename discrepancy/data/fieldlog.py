@@ -603,6 +603,16 @@ def first_order_filter(x: np.ndarray, dt: float, tau: float) -> np.ndarray:
     return y
 
 
+def filter_sensitivity(y: np.ndarray, dt: float, tau: float) -> np.ndarray:
+    """∂y/∂τ (signal units per s) of a first-order filter's output ``y`` (sampled every ``dt`` s, time constant
+    ``tau`` s): differentiating ``τ ẏ + y = x`` by τ gives ``(τ d/dt + 1) ∂y/∂τ = −ẏ``, i.e. the filter applied
+    to −ẏ (:func:`first_order_filter`; ẏ by central differences). What a time constant slightly off leaves:
+    ``δτ · ∂y/∂τ``."""
+    if tau <= 0:
+        return np.zeros_like(np.asarray(y, dtype=np.float64))
+    return -first_order_filter(np.gradient(np.asarray(y, dtype=np.float64), dt), dt, tau)
+
+
 def estimate_sensor_tau(real: Mapping[str, np.ndarray], twin: Mapping[str, np.ndarray], dt: float,
                         channels: Sequence[str] | None = None) -> float:
     """One first-order sensor time constant (s) common to ``channels`` (default: every compared channel present
@@ -674,7 +684,7 @@ def best_tau(cost: Callable[[float], float], dt: float) -> tuple[float, float, f
 __all__ = [
     "KINEMATIC", "MAX_GAP_STEPS", "InputReport", "OffsetEstimate", "PreparedLog",
     "antialias_filter", "best_tau", "bridge_gaps", "command_timing", "control_grid", "delayed", "end_level",
-    "estimate_channel_taus", "estimate_offset", "estimate_sensor_tau",
+    "estimate_channel_taus", "estimate_offset", "estimate_sensor_tau", "filter_sensitivity",
     "first_order_filter", "jittered_commands", "moved_commands", "prepare_log", "resample_commands",
     "resample_phases", "resample_signal",
 ]

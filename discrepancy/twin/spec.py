@@ -11,6 +11,7 @@ from __future__ import annotations
 import inspect
 import json
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -55,6 +56,11 @@ class TwinSpec:
     sensor_taus: tuple[tuple[str, float], ...] = ()
     start_draws: tuple[tuple[tuple[str, float], ...], ...] = ()
     time_offset: float = 0.0
+
+    def channel_taus(self, names: Sequence[str]) -> np.ndarray:
+        """The sensor-filter time constant (s) applied to each of ``names`` (0: not filtered)."""
+        own = dict(self.sensor_taus)
+        return np.array([own.get(n, self.sensor_tau) for n in names], dtype=float)
 
     def null_starts(self, runs: int) -> list[tuple[tuple[str, float], ...]] | None:
         """The starts of ``runs`` null runs (cycling through :attr:`start_draws`), or None when the start is not

@@ -24,6 +24,7 @@ from discrepancy.data.fieldlog import (
     estimate_channel_taus,
     estimate_offset,
     estimate_sensor_tau,
+    filter_sensitivity,
     first_order_filter,
     prepare_log,
     resample_commands,
@@ -358,3 +359,16 @@ def test_each_channels_own_time_constant_is_estimated(clean: EpisodeData) -> Non
         assert got[k] == pytest.approx(tau, abs=0.2 * tau + 0.02), k
     common = estimate_sensor_tau(real, twin, DT, tuple(taus))
     assert any(abs(common - t) > 0.08 for t in taus.values())  # no single tau fits them all
+
+
+def test_filter_sensitivity_is_the_derivative_by_the_time_constant() -> None:
+    """``filter_sensitivity`` against central differences of the filter itself in τ: what a time constant δτ off
+    leaves is δτ · ∂y/∂τ (the null of a low-passed log draws such deviations)."""
+    dt, tau, d = 0.1, 0.2, 1e-4
+    t = dt * np.arange(200)
+    x = np.tanh((t - 5.0) / 0.4) + 0.3 * np.sin(1.3 * t)  # a smooth step (a valve reversal) and a slow swing
+    y = first_order_filter(x, dt, tau)
+    numeric = (first_order_filter(x, dt, tau + d) - first_order_filter(x, dt, tau - d)) / (2 * d)
+    got = filter_sensitivity(y, dt, tau)
+    assert np.max(np.abs(got - numeric)) < 0.05 * np.max(np.abs(numeric))
+    assert not np.any(filter_sensitivity(y, dt, 0.0))
