@@ -185,7 +185,12 @@ class Simulator:
         env = self.env(plan.structure, two_routes)
         env.set_physics(plan.physics)
         options = dict(self.twin.start if start is None else start)
-        env.reset(seed=self.twin.seed, options=options or None)
+        try:
+            env.reset(seed=self.twin.seed, options=options or None)
+        except ValueError as exc:  # a start the machine cannot take (a cylinder beyond its stroke): a failed replay
+            nan = np.full(n, np.nan)
+            return SimResult({k: nan.copy() for k in (*COMPARED, *ROUTE2)}, np.full(n, "error", dtype=object),
+                             f"start refused: {exc}")
         self.runs += 1
         rows: list[dict[str, float]] = []
         phases: list[str] = []

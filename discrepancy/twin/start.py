@@ -568,6 +568,7 @@ def _solve_angles(ep: EpisodeData, runner: Runner, current: dict[str, float]) ->
     target = (np.array([ep.signals[c][rows] for c in names]) / scale).ravel()
     head = ep.commands[:HEAD]
     replays = 0
+    good = (current["boom_angle"], current["bucket_angle"])  # the last angles whose replay ran
     for _ in range(NEWTON):
         x = np.array([current["boom_angle"], current["bucket_angle"]])
         trial = [x, x + np.array([ANGLE_STEP, 0.0]), x + np.array([0.0, ANGLE_STEP])]
@@ -575,6 +576,10 @@ def _solve_angles(ep: EpisodeData, runner: Runner, current: dict[str, float]) ->
                                   starts=[_start({**current, "boom_angle": float(t[0]), "bucket_angle": float(t[1])})
                                           for t in trial])
         replays += 3
+        if results[0].error:  # a step to angles the machine cannot take (benchmark seed 24 case 16): undo it
+            current["boom_angle"], current["bucket_angle"] = good
+            break
+        good = (current["boom_angle"], current["bucket_angle"])
         if any(r.error for r in results):
             break
         y = [(np.array([r.signals[c][rows] for c in names]) / scale).ravel() for r in results]

@@ -161,3 +161,25 @@ def test_a_better_difference_probe_is_taken_when_no_step_helps() -> None:
         twin = TwinSpec.parse(twin_file(case.twin, Path(tmp)).as_posix(), None)
     est = estimate_start(rec.noisy, SerialRunner(twin), profile_filter=True, fit_offset=True)
     assert est.misfit < 4.6, est.misfit
+
+
+def test_a_start_the_machine_cannot_take_is_a_failed_replay() -> None:
+    """Start angles beyond what the linkage assembles (the env refuses them at reset) come back as a failed replay,
+    which the start fit skips like a diverged one, not as an exception out of ``diagnose`` (benchmark seed 24 case
+    16: the angle solve on a held-out log stepped to −0.3, −0.3 rad and the coarse grid's replays raised)."""
+    twin = TwinSpec(make_loader("er12"), make_soil("sand"), {}, 0)
+    commands = np.zeros((5, 3))
+    refused = SerialRunner(twin).run_many(commands, [Plan()], starts=[(("boom_angle", -0.3), ("bucket_angle", -0.3))])
+    assert refused[0].error and refused[0].error.startswith("start refused")
+    assert all(np.isnan(v).all() and len(v) == 5 for v in refused[0].signals.values())
+    assert not SerialRunner(twin).run_many(commands, [Plan()])[0].error
+
+
+@pytest.mark.slow
+def test_benchmark_case_with_a_refused_start_diagnoses() -> None:
+    """Benchmark seed 24 case 16 (a 200 Hz low-passed log without seed, a held-out log beside it) end to end."""
+    from discrepancy.bench.run import run_case
+    from discrepancy.pipeline import DiagnoseOptions
+
+    result = run_case(make_case(16, 24), DiagnoseOptions(budget=1, start_check=False))
+    assert not result.get("error"), result.get("error")
