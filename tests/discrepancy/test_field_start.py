@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from discrepancy import TwinSpec
-from discrepancy.bench.cases import make_case
+from discrepancy.bench.cases import Case, make_case
 from discrepancy.bench.sensor_noise import channel_range
 from discrepancy.bench.synth import field_recording, simulate, twin_file
 from discrepancy.data.episode import EpisodeData, signal_spread
@@ -19,7 +19,7 @@ from discrepancy.data.fieldlog import first_order_filter
 from discrepancy.effects import Scales
 from discrepancy.twin.plant import Plan
 from discrepancy.twin.runner import SerialRunner
-from discrepancy.twin.start import estimate_start
+from discrepancy.twin.start import StartEstimate, estimate_start
 from scaletwin_envs.specs import make_loader, make_soil
 
 #: The truth (boom lengths), off the nominal 0.5 and 0.7 by about one half-range of the env's own draw, so the
@@ -42,6 +42,21 @@ def seedless_log() -> tuple[TwinSpec, EpisodeData]:
     ep = EpisodeData(clean.time[:STEPS], clean.commands[:STEPS], signals, clean.phases[:STEPS], None, twin.loader,
                      twin.soil, {}, "field")
     return twin, ep
+
+
+def _case_start(case: Case, planted: bool = False) -> StartEstimate:
+    """The start estimated, as ``diagnose`` does, from the analysed log of benchmark ``case`` (its planted effects
+    in it when ``planted``) read through its sensors and delivered under its input condition, without its seed."""
+    nominal, control_dt = simulate(case.twin, [], case.twin.seed)
+    ranges = {k: channel_range(v) for k, v in nominal.signals.items()}
+    clean = nominal
+    if planted:
+        scales = Scales.of(case.twin.loader, case.twin.soil, signal_spread(nominal.signals))
+        clean, _ = simulate(case.twin, case.effects(scales), case.twin.seed, case.extra(), name="c")
+    with tempfile.TemporaryDirectory() as tmp:
+        rec = field_recording(clean, control_dt, case.noise, case.condition, ranges, 0, Path(tmp))
+        twin = TwinSpec.parse(twin_file(case.twin, Path(tmp)).as_posix(), None)
+    return estimate_start(rec.noisy, SerialRunner(twin), profile_filter=True, fit_offset=True)
 
 
 def test_pile_and_pose_recovered_from_a_log_without_seed(seedless_log: tuple[TwinSpec, EpisodeData]) -> None:
@@ -90,17 +105,12 @@ def test_the_start_never_fits_worse_than_the_nominal_one() -> None:
     way: the estimate fits the first rows at least as well as the nominal start, and when it is the nominal start,
     it carries no filter and no offset."""
     case = make_case(20, 14)
-    nominal, control_dt = simulate(case.twin, [], case.twin.seed)
-    ranges = {k: channel_range(v) for k, v in nominal.signals.items()}
-    with tempfile.TemporaryDirectory() as tmp:
-        rec = field_recording(nominal, control_dt, case.noise, case.condition, ranges, 0, Path(tmp))
-        twin = TwinSpec.parse(twin_file(case.twin, Path(tmp)).as_posix(), None)
-    est = estimate_start(rec.noisy, SerialRunner(twin), profile_filter=True, fit_offset=True)
+    est = _case_start(case)
     assert est.misfit <= est.misfit_default
     if est.misfit == est.misfit_default:
         got = dict(est.options)
         assert (got["boom_angle"], got["bucket_angle"]) == (0.015, 0.0)  # the env's centre (reset_noise_scale 1)
-        assert got["repose_angle"] == twin.soil.repose_angle and est.offset == 0.0 and est.sensor_tau == 0.0
+        assert got["repose_angle"] == case.twin.soil.repose_angle and est.offset == 0.0 and est.sensor_tau == 0.0
     assert len(est.draws) > 0
 
 
@@ -108,15 +118,7 @@ def test_a_direction_flat_at_the_current_point_does_not_stop_the_fit() -> None:
     """Benchmark seed 23 case 11 (a mini log without seed, white noise, a planted effect): a direction of the joint
     fit seen at an earlier point was flat at a later one, and the damped normal matrix was singular (LinAlgError
     out of ``diagnose``). The fit leaves that direction alone and ends far below the nominal start's misfit."""
-    case = make_case(11, 23)
-    nominal, control_dt = simulate(case.twin, [], case.twin.seed)
-    ranges = {k: channel_range(v) for k, v in nominal.signals.items()}
-    scales = Scales.of(case.twin.loader, case.twin.soil, signal_spread(nominal.signals))
-    clean, _ = simulate(case.twin, case.effects(scales), case.twin.seed, case.extra(), name="c")
-    with tempfile.TemporaryDirectory() as tmp:
-        rec = field_recording(clean, control_dt, case.noise, case.condition, ranges, 0, Path(tmp))
-        twin = TwinSpec.parse(twin_file(case.twin, Path(tmp)).as_posix(), None)
-    est = estimate_start(rec.noisy, SerialRunner(twin), profile_filter=True, fit_offset=True)
+    est = _case_start(make_case(11, 23), planted=True)
     assert np.isfinite(est.misfit) and est.misfit < 0.1 * est.misfit_default
 
 
@@ -153,13 +155,7 @@ def test_a_better_difference_probe_is_taken_when_no_step_helps() -> None:
     bumpy valley floor no Levenberg–Marquardt step from the coarse grid's best point helped, and the fit stopped at
     a misfit of 6.4 while one of its own difference probes, already replayed, fitted at 4.6. The fit moves to such
     a probe and goes on from there."""
-    case = make_case(5, 18)
-    nominal, control_dt = simulate(case.twin, [], case.twin.seed)
-    ranges = {k: channel_range(v) for k, v in nominal.signals.items()}
-    with tempfile.TemporaryDirectory() as tmp:
-        rec = field_recording(nominal, control_dt, case.noise, case.condition, ranges, 0, Path(tmp))
-        twin = TwinSpec.parse(twin_file(case.twin, Path(tmp)).as_posix(), None)
-    est = estimate_start(rec.noisy, SerialRunner(twin), profile_filter=True, fit_offset=True)
+    est = _case_start(make_case(5, 18))
     assert est.misfit < 4.6, est.misfit
 
 
