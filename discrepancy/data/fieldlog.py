@@ -613,6 +613,20 @@ def filter_sensitivity(y: np.ndarray, dt: float, tau: float) -> np.ndarray:
     return -first_order_filter(np.gradient(np.asarray(y, dtype=np.float64), dt), dt, tau)
 
 
+def tau_standard_error(real: np.ndarray, twin: np.ndarray, dt: float, tau: float) -> float:
+    """Standard error (s) of a channel's first-order filter time constant fitted at ``tau`` > 0 against ``twin``
+    (both sampled every ``dt`` s): the residual's noise SD (robust, from its first differences, as if white) over
+    the root of Σ (∂y/∂τ)² (:func:`filter_sensitivity`; the Gauss–Newton curvature). Infinite for a channel that
+    does not move (nothing there tells one time constant from another)."""
+    y = first_order_filter(np.asarray(twin, dtype=np.float64), dt, tau)
+    info = float(np.sum(filter_sensitivity(y, dt, tau) ** 2))
+    d = np.diff(np.asarray(real, dtype=np.float64) - y)
+    if info <= 0.0 or len(d) < 2:
+        return math.inf
+    sd = 1.4826 * float(np.median(np.abs(d - np.median(d)))) / math.sqrt(2.0)
+    return sd / math.sqrt(info)
+
+
 def estimate_sensor_tau(real: Mapping[str, np.ndarray], twin: Mapping[str, np.ndarray], dt: float,
                         channels: Sequence[str] | None = None) -> float:
     """One first-order sensor time constant (s) common to ``channels`` (default: every compared channel present
@@ -686,5 +700,5 @@ __all__ = [
     "antialias_filter", "best_tau", "bridge_gaps", "command_timing", "control_grid", "delayed", "end_level",
     "estimate_channel_taus", "estimate_offset", "estimate_sensor_tau", "filter_sensitivity",
     "first_order_filter", "jittered_commands", "moved_commands", "prepare_log", "resample_commands",
-    "resample_phases", "resample_signal",
+    "resample_phases", "resample_signal", "tau_standard_error",
 ]

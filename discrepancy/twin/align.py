@@ -26,6 +26,7 @@ from discrepancy.data.fieldlog import (
     estimate_offset,
     estimate_sensor_tau,
     first_order_filter,
+    tau_standard_error,
 )
 from discrepancy.twin.plant import Plan
 from discrepancy.twin.runner import Runner
@@ -33,6 +34,10 @@ from discrepancy.twin.spec import SimResult, TwinSpec
 from discrepancy.twin.start import StartEstimate, estimate_start
 
 TOLERANCE = 0.25  # control steps: a channel's own filter time constant this close to the common one is the common one
+#: ... and one within this many of its standard errors (``tau_standard_error``) of the common one is not told apart
+#: from it: a channel that barely moves on the rows it is fitted on gets any time constant (benchmark seed 24 case
+#: 0, a low-passed null: ``tilt_extension`` 1 s, the search's limit, for a true 0.08 s, and 5 windows located)
+SIGNIFICANT = 3.0
 
 
 @dataclass(frozen=True)
@@ -79,14 +84,18 @@ def _channel_taus(ep: EpisodeData, spec: TwinSpec, runner: Runner, rows: int,
                   plain: SimResult | None = None) -> tuple[tuple[str, float], ...]:
     """Each channel's own sensor time constant (s) against the twin ``spec`` without its filters (``plain``, that
     replay where the caller has it; else one replay) over the first ``rows`` rows, where it differs from the common
-    ``spec.sensor_tau`` by at least :data:`TOLERANCE` control steps (:func:`estimate_channel_taus`)."""
+    ``spec.sensor_tau`` by at least :data:`TOLERANCE` control steps and :data:`SIGNIFICANT` standard errors
+    (:func:`estimate_channel_taus`)."""
     nominal = plain or runner.with_twin(dataclasses.replace(spec, sensor_tau=0.0, sensor_taus=())).run_many(
         ep.commands, [Plan()])[0]
     if nominal.error:
         return ()
     rows = min(rows, len(ep))
-    taus = estimate_channel_taus(_head(ep.signals, rows), _head(nominal.signals, rows), ep.dt)
-    return tuple(sorted((c, t) for c, t in taus.items() if abs(t - spec.sensor_tau) >= TOLERANCE * ep.dt))
+    real, twin = _head(ep.signals, rows), _head(nominal.signals, rows)
+    taus = estimate_channel_taus(real, twin, ep.dt)
+    common = spec.sensor_tau
+    return tuple(sorted((c, t) for c, t in taus.items() if abs(t - common) >= TOLERANCE * ep.dt and (
+        t <= 0.0 or abs(t - common) >= SIGNIFICANT * tau_standard_error(real[c], twin[c], ep.dt, t))))
 
 
 def align(ep: EpisodeData, spec: TwinSpec, runner: Runner) -> tuple[EpisodeData, TwinSpec, Alignment]:

@@ -29,6 +29,7 @@ from discrepancy.data.fieldlog import (
     prepare_log,
     resample_commands,
     resample_signal,
+    tau_standard_error,
 )
 from scaletwin_envs.recording.schema import COMMAND_COLUMNS
 from scaletwin_envs.signal_units import SIGNAL_UNITS
@@ -372,3 +373,21 @@ def test_filter_sensitivity_is_the_derivative_by_the_time_constant() -> None:
     got = filter_sensitivity(y, dt, tau)
     assert np.max(np.abs(got - numeric)) < 0.05 * np.max(np.abs(numeric))
     assert not np.any(filter_sensitivity(y, dt, 0.0))
+
+
+def test_tau_standard_error_is_the_spread_of_the_estimate() -> None:
+    """``tau_standard_error`` against the spread of the fitted time constant itself over 200 noise draws (white
+    noise, a channel with a quick change and a slow swing): within 30 %; a channel that does not move tells one
+    time constant from another not at all (infinite)."""
+    dt, tau, sd = 0.1, 0.15, 0.02
+    t = dt * np.arange(120)
+    x = np.tanh((t - 5.0) / 0.3) + 0.3 * np.sin(0.9 * t)
+    y = first_order_filter(x, dt, tau)
+    rng = np.random.default_rng(3)
+    fits, errors = [], []
+    for _ in range(200):
+        real = y + sd * rng.standard_normal(len(t))
+        fits.append(estimate_channel_taus({"F21": real}, {"F21": x}, dt, ["F21"])["F21"])
+        errors.append(tau_standard_error(real, x, dt, fits[-1]))
+    assert np.median(errors) == pytest.approx(np.std(fits), rel=0.3)
+    assert tau_standard_error(np.zeros(50), np.ones(50), dt, tau) == np.inf
