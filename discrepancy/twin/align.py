@@ -80,12 +80,12 @@ def _head(signals: dict[str, np.ndarray], rows: int) -> dict[str, np.ndarray]:
     return {c: v[:rows] for c, v in signals.items()}
 
 
-def _channel_taus(ep: EpisodeData, spec: TwinSpec, runner: Runner, rows: int,
+def _channel_taus(ep: EpisodeData, spec: TwinSpec, runner: Runner, rows: int, common: float,
                   plain: SimResult | None = None) -> tuple[tuple[str, float], ...]:
     """Each channel's own sensor time constant (s) against the twin ``spec`` without its filters (``plain``, that
     replay where the caller has it; else one replay) over the first ``rows`` rows, where it differs from the common
-    ``spec.sensor_tau`` by at least :data:`TOLERANCE` control steps and :data:`SIGNIFICANT` standard errors
-    (:func:`estimate_channel_taus`)."""
+    time constant ``common`` (s, the one applied to every other channel) by at least :data:`TOLERANCE` control steps
+    and :data:`SIGNIFICANT` standard errors (:func:`estimate_channel_taus`)."""
     nominal = plain or runner.with_twin(dataclasses.replace(spec, sensor_tau=0.0, sensor_taus=())).run_many(
         ep.commands, [Plan()])[0]
     if nominal.error:
@@ -93,7 +93,6 @@ def _channel_taus(ep: EpisodeData, spec: TwinSpec, runner: Runner, rows: int,
     rows = min(rows, len(ep))
     real, twin = _head(ep.signals, rows), _head(nominal.signals, rows)
     taus = estimate_channel_taus(real, twin, ep.dt)
-    common = spec.sensor_tau
     return tuple(sorted((c, t) for c, t in taus.items() if abs(t - common) >= TOLERANCE * ep.dt and (
         t <= 0.0 or abs(t - common) >= SIGNIFICANT * tau_standard_error(real[c], twin[c], ep.dt, t))))
 
@@ -150,7 +149,8 @@ def align(ep: EpisodeData, spec: TwinSpec, runner: Runner) -> tuple[EpisodeData,
         notes.append(f"time offset between the log's signals and its commands: {total:.3g} s, applied to the twin "
                      "(read at the log's times)")
     if tau > 0:
-        spec = dataclasses.replace(spec, sensor_tau=tau, sensor_taus=_channel_taus(ep, spec, runner, trusted, plain))
+        spec = dataclasses.replace(spec, sensor_tau=tau,
+                                   sensor_taus=_channel_taus(ep, spec, runner, trusted, tau, plain))
         notes.append(f"the log's channels went through a first-order sensor filter: tau {tau:.3g} s estimated, "
                      "applied to the twin")
         if spec.sensor_taus:

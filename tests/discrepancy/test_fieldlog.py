@@ -31,8 +31,12 @@ from discrepancy.data.fieldlog import (
     resample_signal,
     tau_standard_error,
 )
+from discrepancy.twin.align import _channel_taus
+from discrepancy.twin.runner import SerialRunner
+from discrepancy.twin.spec import SimResult, TwinSpec
 from scaletwin_envs.recording.schema import COMMAND_COLUMNS
 from scaletwin_envs.signal_units import SIGNAL_UNITS
+from scaletwin_envs.specs import make_loader, make_soil
 
 DT = 0.1  # ER12's control step, s
 #: Units a data logger might write: (unit in the header, factor: file value = SI value × factor).
@@ -391,3 +395,24 @@ def test_tau_standard_error_is_the_spread_of_the_estimate() -> None:
         errors.append(tau_standard_error(real, x, dt, fits[-1]))
     assert np.median(errors) == pytest.approx(np.std(fits), rel=0.3)
     assert tau_standard_error(np.zeros(50), np.ones(50), dt, tau) == np.inf
+
+
+def test_a_channels_own_filter_is_kept_only_where_it_differs_from_the_common_one() -> None:
+    """Each channel's own time constant against the common one applied to the others (0.175 s): a channel filtered
+    at 0.06 s keeps its own; one at 0.17 s takes the common (within a quarter step); one that hardly moves on the
+    fitted rows takes the common whatever its fit says (its standard error is huge). The comparison is with the
+    common τ applied, not with the twin's declared one (0 for a log whose filter was estimated: every channel kept
+    its own then, benchmark seed 0 case 5's boom angle included, which the significance test alone dropped)."""
+    dt, n = 0.14, 60
+    t = dt * np.arange(n)
+    moving = np.tanh((t - 3.0) / 0.5) + 0.2 * np.sin(1.1 * t)
+    still = 1e-3 * np.sin(0.05 * t)
+    twin = {"boom_angle": moving, "lift_extension": 2.0 * moving, "tilt_extension": still}
+    taus = {"boom_angle": 0.06, "lift_extension": 0.17, "tilt_extension": 0.08}
+    rng = np.random.default_rng(0)
+    real = {k: first_order_filter(v, dt, taus[k]) + 0.003 * rng.standard_normal(n) for k, v in twin.items()}
+    ep = EpisodeData(t, np.zeros((n, 3)), real, np.array(["lift"] * n, dtype=object), None, None, None, {}, "log")
+    plain = SimResult(twin, np.array(["lift"] * n, dtype=object), None)
+    spec = TwinSpec(make_loader("er12"), make_soil("sand"), {}, 0)
+    own = dict(_channel_taus(ep, spec, SerialRunner(spec), n, 0.175, plain))
+    assert set(own) == {"boom_angle"} and own["boom_angle"] == pytest.approx(0.06, abs=0.01)
