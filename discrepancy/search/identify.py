@@ -195,8 +195,6 @@ def identify(ctx: Context, located: LocateResult, suspects: set[str], opts: Iden
         tolerable = judge.removed >= EXPLAINED and (len(after.located) <= _tolerated(located) or not _strong(after))
     # a few faint windows that no catalogue effect explains are put down to chance, not to missing physics
     out.unexplained = not tolerable and (bool(out.effects) or _strong(located))
-    if out.unexplained and not out.effects and _drift_explains(ctx, located):
-        out.unexplained, out.drift = False, tuple(sorted({loc.signal for loc in located.located}))
     if not out.unexplained:  # the last round found nothing worth adding: its trials are not an accepted effect
         out.rounds = out.rounds[: len(out.effects)]
     elif only_closest(out, ctx.budget.cut):  # say unexplained rather than name the closest entry
@@ -205,7 +203,7 @@ def identify(ctx: Context, located: LocateResult, suspects: set[str], opts: Iden
 
 
 def _drift_explains(ctx: Context, located: LocateResult) -> bool:
-    """Whether the located excess, which no catalogue effect explains, is the sensors' drift: every located
+    """Whether the located excess is the sensors' drift (asked before any search): every located
     channel's noise model drifts and, whitened with that drift (:meth:`~discrepancy.stats.noise.NoiseModel.
     whiten_drift`, its null calibrated alike), nothing is located. A random walk's rate is known only roughly from
     one record and the whitening without it leaves the walk's level, so a walk that went further than its

@@ -32,7 +32,7 @@ Jacobian column read off the same replays). Sensors of one logger need not share
 against channels filtered at 0.05–0.3 s each left the start off too (benchmark seed 15 case 5, noise-free: misfit
 0.22, and each channel's τ fitted against that start came out 0.01–0.10 s short, read as a sensor gain on
 ``lift_extension``); where a filter is found the start is therefore fitted again with each channel's own τ
-profiled out and the offset held (:data:`CHANNEL_FILTER_STAGE`): a common offset and one τ per channel both lag,
+profiled out and the offset held (:func:`_channel_filter_stage`): a common offset and one τ per channel both lag,
 and only the common fit can tell them apart.
 
 Everything is fitted on the rows up to the first contact and a share after it (:data:`EARLY_SHARE`); what the log
@@ -129,9 +129,6 @@ DRAWS = 8  # draws kept (the null runs cycle through them)
 #: angle against 2.65 on the same case (the early rows leave a bias, not noise).
 WHOLE_LOG = (0.6, 1.0)
 DRAW_SEED = 47  # the draws are seeded: the same log gives the same null
-#: Where the joint fit finds a sensor filter, the start is refitted with each motion channel's own τ profiled out
-#: (see the module); False leaves the common-τ fit alone.
-CHANNEL_FILTER_STAGE = True
 CONTACT = 0.01  # share of the soil resistance's range that marks the first contact
 #: Channels the start is fitted on: the motion, which a pile met a little earlier or later shifts smoothly (the
 #: forces jump at contact and make the misfit a needle around the true start).
@@ -214,8 +211,7 @@ class _Fit:
         twin = self._rows(result, shift)
 
         def z_at(tau: float) -> np.ndarray:
-            seen = first_order_filter(twin, self.ep.dt, tau)
-            return np.nan_to_num(((seen - self.real) / self.scale[:, None]).T, nan=1e3).ravel()
+            return self._z(first_order_filter(twin, self.ep.dt, tau))
 
         if not self.profile_filter:
             return _Probe(z_at(0.0), result, shift=shift)
@@ -229,19 +225,20 @@ class _Fit:
         twin = delayed(np.stack([result.signals[s] for s in self.names]), self.ep.dt, shift * self.ep.dt)
         return twin[:, : self.rows]
 
+    def _z(self, seen: np.ndarray, j: int | None = None) -> np.ndarray:
+        """(twin as the sensors see it − log) / scale, flattened row by row: every fitted channel (``seen``
+        channels × rows), or channel ``j`` alone (``seen`` its rows); a non-finite twin counts as far off."""
+        if j is not None:
+            return np.nan_to_num((seen - self.real[j]) / self.scale[j], nan=1e3)
+        return np.nan_to_num(((seen - self.real) / self.scale[:, None]).T, nan=1e3).ravel()
+
     def unfiltered(self, probe: _Probe) -> float:
         """``probe``'s misfit with no sensor filter (same replay and offset)."""
-        seen = self._rows(probe.result, probe.shift)
-        return misfit(np.nan_to_num(((seen - self.real) / self.scale[:, None]).T, nan=1e3).ravel())
+        return misfit(self._z(self._rows(probe.result, probe.shift)))
 
-    def channel_filtered(self, probe: _Probe) -> bool:
-        """Whether filters are worth it at ``probe``: the common one (:attr:`_Probe.filtered`), or each channel's
-        own, which together remove at least :data:`~discrepancy.data.fieldlog.MIN_TAU_GAIN` of the unfiltered
-        misfit (channels filtered at 0.05–0.3 s each: one common τ removed less, benchmark seed 16 case 0)."""
-        if probe.filtered:
-            return True
-        own = self._per_channel(self._rows(probe.result, probe.shift), probe.result, probe.shift)
-        return misfit(own) <= (1.0 - MIN_TAU_GAIN) * self.unfiltered(probe)
+    def own_filters(self, probe: _Probe) -> _Probe:
+        """``probe``'s replay and offset with each channel through its own best filter (no further replay)."""
+        return self._per_channel(self._rows(probe.result, probe.shift), probe.result, probe.shift)
 
     def _per_channel(self, twin: np.ndarray, result: SimResult, shift: float) -> _Probe:
         """The probe of ``twin`` (channels × fitted rows, read at ``shift``) with each channel through the
@@ -249,8 +246,7 @@ class _Fit:
         rows, taus = [], []
         for j in range(len(self.names)):
             def z_of(tau: float, j: int = j) -> np.ndarray:
-                seen = first_order_filter(twin[j], self.ep.dt, tau)
-                return np.nan_to_num((seen - self.real[j]) / self.scale[j], nan=1e3)
+                return self._z(first_order_filter(twin[j], self.ep.dt, tau), j)
 
             tau = best_tau(lambda t, z_of=z_of: misfit(z_of(t)), self.ep.dt)[0]
             rows.append(z_of(tau))
@@ -345,8 +341,12 @@ def estimate_start(ep: EpisodeData, runner: Runner, profile_filter: bool = False
         # shift had left no filter; seed 19 case 15: a lead of 0.9 steps against a 0.3 s filter, the pile 0.08
         # boom lengths near)
         z, unseen = _levenberg_marquardt(fit, centre, current, fit.residuals(z.result, 0.0))
-    if CHANNEL_FILTER_STAGE and z is not None and fit.profile_filter and fit.channel_filtered(z):
-        z, unseen = _channel_filter_stage(fit, centre, current, z)
+    if z is not None and fit.profile_filter:
+        # filters are worth it: the common one, or each channel's own, which together remove MIN_TAU_GAIN of the
+        # unfiltered misfit (channels filtered at 0.05–0.3 s each: one common τ removed less, seed 16 case 0)
+        own = fit.own_filters(z)
+        if z.filtered or misfit(own) <= (1.0 - MIN_TAU_GAIN) * fit.unfiltered(z):
+            z, unseen = _channel_filter_stage(fit, centre, current, z, own)
     common_tau = z.tau if z is not None and z.filtered else 0.0
     unidentified = tuple(k for k in unseen if k in PILE)
     if misfit(z) > default:  # the search ended where the log fits worse than from the nominal start: keep that one
@@ -360,15 +360,15 @@ def estimate_start(ep: EpisodeData, runner: Runner, profile_filter: bool = False
 
 
 def _channel_filter_stage(fit: _Fit, centre: dict[str, tuple[float, float]], current: dict[str, float],
-                          common: _Probe) -> tuple[_Probe, tuple[str, ...]]:
-    """The start refitted from ``current`` (reached with one common τ, probe ``common``) with each channel's own τ
-    profiled out and the offset held at ``common``'s (see the module); ``current`` updated in place. Returns the
-    probe reached, rescored with the common τ (the twin's common filter; each channel's own is estimated against
-    this start afterwards, ``discrepancy.twin.align``), and the quantities the log does not see."""
+                          common: _Probe, own: _Probe) -> tuple[_Probe, tuple[str, ...]]:
+    """The start refitted from ``current`` (reached with one common τ, probe ``common``; ``own``: the same replay
+    with each channel's own τ) with each channel's own τ profiled out and the offset held at ``common``'s (see the
+    module); ``current`` updated in place. Returns the probe reached, rescored with the common τ (the twin's common
+    filter; each channel's own is estimated against this start afterwards, ``discrepancy.twin.align``), and the
+    quantities the log does not see."""
     fit.per_channel = True
     try:
-        probe = fit.residuals(common.result, common.shift)
-        probe, unseen = _levenberg_marquardt(fit, centre, current, probe, shift=common.shift)
+        probe, unseen = _levenberg_marquardt(fit, centre, current, own, shift=common.shift)
     finally:
         fit.per_channel = False
     if probe is None:
