@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from scaletwin_envs.physics.kinematics import bucket_stops
 from scaletwin_envs.physics.mass_layout import ROD_FRACTION, BodyLayout, chassis_com, cylinder_axis, linkage_layout
 from scaletwin_envs.specs.loader import GRAVITY, CylinderSpec, LoaderSpec
 
@@ -39,6 +40,7 @@ CYLINDER_ARMATURE = 1.0
 # which MuJoCo otherwise drops, and without which a stalled bucket chatters; the constraint servo needs no such help
 # (it is 1/1000 of the servo gain: far too little to stop the relay, see SERVO_KINDS), so it stays as physics only.
 CYLINDER_DAMPING = 0.1
+STOP_WIDTH = 1e-3  # rad: solimp transition width of the bucket stops (an angle: the same at every size)
 PILE_COLUMNS = 48  # visual boxes drawing the pile surface
 # How each cylinder's velocity servo and relief valve are modelled (BuildOptions.servo):
 # "constraint" (default): the valve is a velocity source (a "supply" slide, run at the commanded speed) and the
@@ -185,6 +187,7 @@ def build_spec(spec: LoaderSpec, options: BuildOptions | None = None) -> mujoco.
     L = spec.characteristic_length
     s.modelname = f"wheel_loader_{spec.name}".replace(" ", "_")
     s.compiler.inertiafromgeom = mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_FALSE
+    s.compiler.degree = False  # joint ranges in rad
     s.option.timestep = opt.timestep
     s.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
     s.option.gravity = [0.0, 0.0, -GRAVITY]
@@ -302,6 +305,14 @@ def _add_bucket(boom: mujoco.MjsBody, spec: LoaderSpec, lay: dict, piv: np.ndarr
     o = np.asarray(g.pin_O)
     b = lay["bucket"]
     bucket = _hinged_body(boom, "bucket", "bucket_hinge", o - piv, b)
+    # The bucket's rack-back and dump stops on the boom: short of link B's dead centres by BUCKET_STOP_MARGIN
+    # (physics.kinematics.bucket_stops), with the loops' stiffness and a 1 mrad transition (an angle: the same at
+    # every size).
+    hinge = bucket.joints[0]
+    hinge.range = list(bucket_stops(g))  # rad: build_spec sets compiler.degree = False
+    hinge.limited = mujoco.mjtLimited.mjLIMITED_TRUE
+    hinge.solref_limit = [opt.constraint_timeconst, 1.0]
+    hinge.solimp_limit = [0.9, 0.95, STOP_WIDTH, 0.5, 2.0]
     heel, edge, top = (np.asarray(v) - o for v in (g.bucket_heel, g.bucket_edge, g.bucket_back_top))
     half_w, t = 0.5 * g.bucket_width, 0.02 * L
     inward = (edge - heel) + (top - heel)  # plates lie inside the outline so the outline is the contact surface

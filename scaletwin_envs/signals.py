@@ -57,7 +57,8 @@ class LoaderIds:
         return cls(
             bodies=bodies, sites=ids(mujoco.mjtObj.mjOBJ_SITE, (*PIN_SITES, "pin_O")),
             eq_f21=ids(mujoco.mjtObj.mjOBJ_EQUALITY, ("link_b_to_bucket",))["link_b_to_bucket"],
-            joints=ids(mujoco.mjtObj.mjOBJ_JOINT, ("drive", "boom_hinge", "lift_cylinder", "tilt_cylinder")),
+            joints=ids(mujoco.mjtObj.mjOBJ_JOINT,
+                       ("drive", "boom_hinge", "bucket_hinge", "lift_cylinder", "tilt_cylinder")),
             actuators=ids(mujoco.mjtObj.mjOBJ_ACTUATOR, ("lift", "tilt", "drive")), bucket_geoms=geoms,
         )
 
@@ -108,6 +109,8 @@ class SignalReader:
         self._x21, self._xO = 2 * pins.index("pin_21"), 2 * pins.index("O")  # their x components in the solution
         self._x_axial = {c: 2 * len(pins) + 3 * k for k, (c, *_) in enumerate(CYLINDERS)}
         self._slide_dof = {k: int(model.jnt_dofadr[self.ids.joints[f"{k}_cylinder"]]) for k in ("lift", "tilt")}
+        self._kboom = names.index("boom")
+        self._stop_dof = int(model.jnt_dofadr[self.ids.joints["bucket_hinge"]])
         self._gravity = -float(model.opt.gravity[2])
         self._bucket_tendons = self._tendons_on(self.ids.bodies["bucket"])
         self._act = {k: self.ids.actuators[k] for k in ("lift", "tilt")}
@@ -295,8 +298,13 @@ class SignalReader:
         for px, pz, lx, lz in (*self._bucket_contacts(data), *self._tendon_loads(data)):
             fx, fz = fx + lx, fz + lz
             turn += (px - cx) * lz - (pz - cz) * lx
+        # the bucket stop's moment (N·m, CCW on the bucket, the opposite on the boom; zero off the stop)
+        stop = self._limit_force(data, "bucket_hinge", self._stop_dof)
         bodies[self._kb] = (total, cx, cz, (mb * abx + mp * apx) / total, (mb * abz + mp * apz) / total, alpha,
-                            inertia, fx, fz, turn)
+                            inertia, fx, fz, turn + stop)
+        if stop:
+            *boom, moment = bodies[self._kboom]
+            bodies[self._kboom] = (*boom, moment - stop)
         pts = [(x, z) for x, _, z in self._site_xpos.take(self._sid, 0).tolist()]
         slide_points, slide_axes = [], []
         for a, e in self._cyl_sites:  # cylinder axis from its frame pin to its rod-end pin
@@ -310,7 +318,8 @@ class SignalReader:
         i21, iO = self._x21, self._xO
         r21, r31 = (x[i21], x[i21 + 1]), (x[iO], x[iO + 1])
         lift, tilt = x[self._x_axial["lift"]], x[self._x_axial["tilt"]]
-        axial = {c_: actuator[c_] + self._limit_force(data, c_) - self._armature_force(data, c_)
+        axial = {c_: actuator[c_] + self._limit_force(data, f"{c_}_cylinder", self._slide_dof[c_])
+                 - self._armature_force(data, c_)
                  for c_ in ("lift", "tilt")}
         w = self.force_scale
         f21_r2, f31_r2, d21, d31 = np.hypot((r21[0], r31[0], r21[0] - f21[0], r31[0] - f31[0]),
@@ -326,15 +335,15 @@ class SignalReader:
         dof = self._slide_dof[cylinder]
         return self._dof_armature.item(dof) * data.qacc.item(dof) + self._dof_damping.item(dof) * data.qvel.item(dof)
 
-    def _limit_force(self, data: mujoco.MjData, cylinder: str) -> float:
-        j = self.ids.joints[f"{cylinder}_cylinder"]
+    def _limit_force(self, data: mujoco.MjData, joint: str, dof: int) -> float:
+        """Generalised force of ``joint``'s limit on its ``dof`` (N on a slide, N·m on a hinge; 0 off its ends)."""
         if data.nl == 0:  # no joint limit active anywhere
             return 0.0
+        j = self.ids.joints[joint]
         rows = np.nonzero((data.efc_type == mujoco.mjtConstraint.mjCNSTR_LIMIT_JOINT) & (data.efc_id == j))[0]
         if rows.size == 0:
             return 0.0
         # a joint-limit row's Jacobian is ±1 on the joint's dof: its sign says which end is hit
-        dof = self._slide_dof[cylinder]
         return float(sum(data.efc_force[r] * self._jac_entry(data, r, dof) for r in rows))
 
     def _jac_entry(self, data: mujoco.MjData, row: int, dof: int) -> float:

@@ -89,6 +89,15 @@ Version history:
     F21 by 0.9 % RMS / 4 % max of its range at the ER12 and 2.2 / 13 % at the WA475, now within 3e-5. Recordings
     and checkpoints made with v0 name it in their provenance; ``WheelLoaderDigRandom`` and ``WheelLoaderLoadTruck``
     moved to v1 with it.
+    v1 (2026-11-26, dynamics changed only where the bucket meets its new stop; the id stays v1): the bucket has a
+    rack-back stop on the boom (the joint ``bucket_hinge`` is limited), 10° short of the angle at which link B
+    and the bucket's lever come in line (:func:`scaletwin_envs.physics.kinematics.bucket_stops`). Without it a
+    full rack-back at a raised boom drove the linkage to within 3° of that dead centre (ER12), and on machines of
+    the product line a rack-back at relief, or a lowered boom pressing the bucket into the ground, took the Z-bar
+    over to its other assembly branch (bucket pitch 0.3–1.9 rad off what the cylinder lengths give on 328 hold
+    rows of 3 of the 40 machines drawn with design seed 0). The scripted dig of the presets never reaches the stop
+    and records bit for bit as before (as do the paper's and the zoo's recordings); the second route to the pin
+    forces counts the stop's moment on the bucket and the boom.
 """
 
 from __future__ import annotations

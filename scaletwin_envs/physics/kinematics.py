@@ -8,6 +8,7 @@ intersections. The inverse problem, from cylinder lengths to angles, closes the 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -134,3 +135,80 @@ def tilt_ratio(g: LinkageGeometry, boom: float, pitch: float) -> float:
     r_tilt = abs(cross2(pts["bell_crank_top"] - c, u_tilt / np.linalg.norm(u_tilt)))
     r_b = abs(cross2(pts["bell_crank_bottom"] - c, u_b / np.linalg.norm(u_b)))
     return float(r_tilt / r_b) if r_b > 0 else float("inf")
+
+
+#: Closest approach (rad) of link B to a dead centre with the bucket's lever (pin 21 → O) that the bucket stops
+#: allow (:func:`bucket_stops`). A design rule of ours, no published band: mechanism texts keep a transmission
+#: angle well away from 0 and 180° wherever a linkage must carry load; 10° leaves every pose the ER12's scripted
+#: dig and the paper's recordings reach (they come no closer than 14°) and stops the machines of the product
+#: line whose tilt stroke reaches past the dead centre at a raised boom (without it their simulated Z-bar
+#: snapped through to its other assembly branch under a rack-back at relief, or when the lowered boom pressed the
+#: bucket into the ground and curled it back).
+BUCKET_STOP_MARGIN = math.radians(10.0)
+
+
+def link_b_transmission(pose: LinkagePose) -> float:
+    """Interior angle at pin 21 between link B (towards the bell crank's bottom pin) and the bucket's lever
+    (towards O), rad in [0, π]; 0 (folded) and π (stretched) are the dead centres where the tilt linkage holds no
+    bucket moment."""
+    p = pose.points
+    u, v = p["bell_crank_bottom"] - p["pin_21"], p["pin_O"] - p["pin_21"]
+    return float(math.atan2(abs(cross2(u, v)), float(np.dot(u, v))))
+
+
+def bucket_stops(g: LinkageGeometry, margin: float = BUCKET_STOP_MARGIN) -> tuple[float, float]:
+    """The bucket's stops on the boom (a real Z-bar's rack-back and dump stops): the bucket angles relative to the
+    boom (rad, 0 in the reference pose; the range of the joint ``bucket_hinge``), lower first, at which link B
+    comes within ``margin`` rad of a dead centre with the bucket's lever (:func:`link_b_transmission` leaves
+    [margin, π − margin]) on either side of the reference pose. ±π on a side where the bucket's travel ends
+    first (the bell crank and link B in line: the linkage's own limit) or no dead centre lies.
+
+    The bell crank turns about its pivot on the boom, so the distance from O to the bell crank's bottom pin, and
+    with it that angle (law of cosines in the triangle O, pin 21, bottom pin), depends on the bell crank's angle
+    alone: the crank angles where it leaves the band are found first, then the bucket angles they give. A stop on
+    the bucket rather than on the bell crank also carries what the ground does to the bucket (a boom lowered onto
+    it) without loading the linkage.
+
+    Raises:
+        ValueError: the reference pose itself lies within ``margin`` of a dead centre, or ``margin`` is not in
+            [0, π/2).
+    """
+    if not 0.0 <= margin < 0.5 * math.pi:
+        raise ValueError(f"margin must be in [0, π/2) rad, got {margin}")
+    c, bottom, o, p21 = (_p(v) for v in (g.bell_crank_pivot, g.bell_crank_bottom, g.pin_O, g.pin_21))
+    a, b = float(np.linalg.norm(p21 - o)), float(np.linalg.norm(p21 - bottom))
+    # the transmission angle leaves [margin, π − margin] where |O − bottom| leaves [d_lo, d_hi]
+    d_lo = math.sqrt(a * a + b * b - 2.0 * a * b * math.cos(margin))
+    d_hi = math.sqrt(a * a + b * b + 2.0 * a * b * math.cos(margin))
+
+    def inside(phi: float) -> bool:
+        d = float(np.linalg.norm(rotate_about(bottom, c, phi) - o))
+        return d_lo <= d <= d_hi
+
+    if not inside(0.0):
+        raise ValueError(f"the reference pose lies within {math.degrees(margin):.1f}° of link B's dead centre")
+    side = cross2(bottom - o, p21 - o)
+
+    def bucket(phi: float) -> float:
+        pin = circle_intersection(o, a, rotate_about(bottom, c, phi), b, side)
+        if pin is None:  # cannot happen inside the band (the dead centres lie outside it)
+            raise LinkageUnreachable(f"link B cannot close at bell-crank angle {phi:.4f} rad")
+        return _wrap(heading(pin - o) - heading(p21 - o))
+
+    stops = []
+    for sign in (-1.0, 1.0):
+        step, phi, turn = 1e-2, 0.0, bucket(sign * 1e-2)
+        while phi < math.pi and inside(sign * (phi + step)):
+            if (bucket(sign * (phi + step)) - bucket(sign * phi)) * turn < 0.0:
+                break  # the bucket turns back: crank and link B in line, the linkage's own limit on this side
+            phi += step
+        else:
+            if phi < math.pi:  # the band's edge: bisect the crossing to 1e-9 rad
+                lo, hi = phi, phi + step
+                while hi - lo > 1e-9:
+                    mid = 0.5 * (lo + hi)
+                    lo, hi = (mid, hi) if inside(sign * mid) else (lo, mid)
+                stops.append(bucket(sign * lo))
+                continue
+        stops.append(math.copysign(math.pi, turn))  # no dead centre of link B with the lever on this side
+    return min(stops), max(stops)
