@@ -54,9 +54,9 @@ MATCH_KEYS: tuple[str, ...] = ("boom_angle", "bucket_pitch", "fill")
 MATCH_WEIGHTS: tuple[float, ...] = (1.0, 1.0, 1.0)
 #: Largest ``pitch_gap`` (rad) of a row on the design's assembly branch. Measured on the 53 machines of the
 #: leave-machine-out layout before the bucket stop (125,040 rows, design seeds 0 and 1): on 50 machines the gap is
-#: the linkage's compliance under load (a machine's 99th percentile 0.010–0.052 rad, its largest 0.011–0.133 rad); on four hold episodes of
-#: ``pl0-14``, ``pl0-24`` and ``pl0-25``, whose Z-bar flipped over in the final rack-back at relief, 0.9–1.9 rad on
-#: 404 rows (none between 0.3 and 0.9 rad).
+#: the linkage's compliance under load (a machine's 99th percentile 0.010–0.052 rad, its largest 0.011–0.133 rad);
+#: on four hold episodes of ``pl0-14``, ``pl0-24`` and ``pl0-25``, whose Z-bar flipped over in the final rack-back
+#: at relief, 0.9–1.9 rad on 404 rows (none between 0.3 and 0.9 rad).
 BRANCH_TOLERANCE = 0.3
 
 
