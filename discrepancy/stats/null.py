@@ -11,7 +11,10 @@ log's sampling leaves uncertain (:func:`~discrepancy.data.fieldlog.jittered_comm
 (a cylinder stalling at relief, the wheels slipping) whose timing a command a hundredth of a step off moves. A twin
 whose sensor filters were estimated from the log (a low-passed log) has each run's filters moved within what
 the estimate leaves open (:func:`filter_deviations`): a channel's time constant a tenth off leaves a residual at
-every quick change of that channel (a valve reversal), which is not a discrepancy.
+every quick change of that channel (a valve reversal), which is not a discrepancy. A log whose time offset
+was estimated but not applied (``TwinSpec.offset_spread``) has each run read that much earlier or later
+(:func:`offset_deviations`): the samples at a valve's switch move by most of the switch where the log is a
+fraction of a step off.
 """
 
 from __future__ import annotations
@@ -80,6 +83,9 @@ def calibrate(ctx: Context, spec: NullSpec | None = None, effects: Sequence[Effe
     if np.any(taus > 0.0):
         dev = dev + filter_deviations(np.nan_to_num(center), ctx.real.dt, taus, len(runs),
                                       np.random.default_rng([spec.seed, 83]))
+    if twin.offset_spread > 0.0:
+        dev = dev + offset_deviations(np.nan_to_num(center), ctx.real.dt, twin.offset_spread, len(runs),
+                                      np.random.default_rng([spec.seed, 89]))
     spread = np.array([ctx.scales.signal_scale[s] for s in ctx.names])
     residual = np.nan_to_num(ctx.real_matrix - center)
     regressors = np.nan_to_num(center)  # what the twin's own signals explain is not noise (sensor_noise)
@@ -99,6 +105,15 @@ def filter_deviations(twin: np.ndarray, dt: float, taus: np.ndarray, runs: int, 
         sensitivity = filter_sensitivity(twin[:, j], dt, float(taus[j]))
         out[:, :, j] = (FILTER_SPREAD * taus[j] * rng.standard_normal(runs))[:, None] * sensitivity[None, :]
     return out
+
+
+def offset_deviations(twin: np.ndarray, dt: float, spread: float, runs: int, rng: np.random.Generator
+                      ) -> np.ndarray:
+    """(runs, steps, signals): what reading the ``twin`` (steps, signals, sampled every ``dt`` s) at a time offset
+    drawn normal with standard deviation ``spread`` s does to it, to first order: ``−δt · ẏ`` (central
+    differences)."""
+    rate = np.gradient(np.asarray(twin, dtype=np.float64), dt, axis=0)
+    return -(spread * rng.standard_normal(runs))[:, None, None] * rate[None]
 
 
 def _null_runs(ctx: Context, spec: NullSpec, plans: list[Plan]) -> list[SimResult]:

@@ -44,7 +44,9 @@ class TwinSpec:
     signals lag its commands, applied to every twin signal after the filter (:func:`~discrepancy.data.fieldlog.
     delayed`; the twin read at the log's times, rather than the log shifted: a shift of a sampled step leaves an
     interpolation error the twin's own reading does not); ``start_draws``: starts as uncertain as
-    the estimated ``start`` (reset options each), which the null's runs start from (:meth:`null_starts`).
+    the estimated ``start`` (reset options each), which the null's runs start from (:meth:`null_starts`);
+    ``offset_spread``: s, the standard deviation of a time offset the log leaves open (estimated but not applied),
+    which the null's runs carry (:func:`~discrepancy.stats.null.offset_deviations`).
     """
 
     loader: LoaderSpec
@@ -56,6 +58,7 @@ class TwinSpec:
     sensor_taus: tuple[tuple[str, float], ...] = ()
     start_draws: tuple[tuple[tuple[str, float], ...], ...] = ()
     time_offset: float = 0.0
+    offset_spread: float = 0.0
 
     def channel_taus(self, names: Sequence[str]) -> np.ndarray:
         """The sensor-filter time constant (s) applied to each of ``names`` (0: not filtered)."""
@@ -118,13 +121,13 @@ class TwinSpec:
         draws = tuple(tuple(sorted((str(k), float(v)) for k, v in dict(d).items()))
                       for d in doc.get("start_draws", []))
         return cls(loader, soil, kwargs, int(seed), start, float(doc.get("sensor_tau", 0.0)), taus, draws,
-                   float(doc.get("time_offset", 0.0)))
+                   float(doc.get("time_offset", 0.0)), float(doc.get("offset_spread", 0.0)))
 
     def to_dict(self) -> dict[str, Any]:
         return {"scale": self.loader.to_dict(), "soil": self.soil.to_dict(), "env_kwargs": dict(self.env_kwargs),
                 "seed": self.seed, "start": dict(self.start), "sensor_tau": self.sensor_tau,
                 "sensor_taus": dict(self.sensor_taus), "start_draws": [dict(d) for d in self.start_draws],
-                "time_offset": self.time_offset}
+                "time_offset": self.time_offset, "offset_spread": self.offset_spread}
 
 
 def _scale(value: Any) -> float | str:
