@@ -184,7 +184,7 @@ class WheelLoaderDigEnv(LoaderEnv):
 
     RESET_OPTIONS: ClassVar[Mapping[str, str]] = {
         "boom_angle": "start boom angle vs the reference dig pose, rad (default U(0, 0.03)·noise)",
-        "bucket_angle": "start bucket angle vs the boom, rad (default U(-0.03, 0.03)·noise)",
+        "bucket_angle": "start bucket angle vs the boom, rad, within its stops (default U(-0.03, 0.03)·noise)",
         "pile_distance": "cutting edge to pile toe, boom lengths, > 0 (default pile_distance + U(-0.05, 0.05)·noise)",
         "pile_height": "pile height, boom lengths, > 0 (default pile_height·(1 + U(-0.08, 0.08)·noise))",
         "repose_angle": "pile repose angle, rad, in (0, π/2) (default the soil's ± 2°·noise)",
@@ -278,6 +278,10 @@ class WheelLoaderDigEnv(LoaderEnv):
                 if not lo <= qpos[j.qposadr[0]] <= hi:
                     raise ValueError(f"reset options boom_angle={boom}, bucket_angle={bucket} rad put the {k} "
                                      f"cylinder outside its stroke")
+            lo, hi = self.model.joint("bucket_hinge").range
+            if not lo <= bucket <= hi:
+                raise ValueError(f"reset option bucket_angle={bucket} rad lies past the bucket's stops "
+                                 f"[{lo:.4g}, {hi:.4g}] rad (physics.kinematics.bucket_stops)")
         return out
 
     def reset_model(self) -> np.ndarray:

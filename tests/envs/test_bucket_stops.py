@@ -145,3 +145,12 @@ def test_a_product_line_rack_back_that_flipped_the_z_bar_stays_on_its_branch() -
         gaps.append(abs((pitch - boom - bucket + math.pi) % (2 * math.pi) - math.pi))
     assert len(gaps) > 0.9 * len(d)
     assert max(gaps) < 0.15
+
+
+def test_a_start_past_the_stop_is_refused_with_the_stop_named() -> None:
+    env = gym.make(scaletwin_envs.ENV_ID, scale="er12")
+    stop = bucket_stops(make_loader("er12").geometry)[1]
+    env.reset(seed=0, options={"boom_angle": 0.5, "bucket_angle": stop - 0.05})  # inside: accepted
+    with pytest.raises(ValueError, match="past the bucket's stops"):
+        env.reset(seed=0, options={"boom_angle": 0.5, "bucket_angle": stop + 0.05})
+    env.close()
