@@ -198,10 +198,12 @@ def bucket_stops(g: LinkageGeometry, margin: float = BUCKET_STOP_MARGIN) -> tupl
     stops = []
     for sign in (-1.0, 1.0):
         step, phi, turn = 1e-2, 0.0, bucket(sign * 1e-2)
+        here = bucket(0.0)
         while phi < math.pi and inside(sign * (phi + step)):
-            if (bucket(sign * (phi + step)) - bucket(sign * phi)) * turn < 0.0:
+            ahead = bucket(sign * (phi + step))
+            if (ahead - here) * turn < 0.0:
                 break  # the bucket turns back: crank and link B in line, the linkage's own limit on this side
-            phi += step
+            phi, here = phi + step, ahead
         else:
             if phi < math.pi:  # the band's edge: bisect the crossing to 1e-9 rad
                 lo, hi = phi, phi + step
