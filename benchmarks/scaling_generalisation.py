@@ -26,9 +26,7 @@ import json
 import os
 import tempfile
 import time
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -38,10 +36,8 @@ from scaletwin_envs.host import host_line
 from scaling.data.product_line import LINKAGE_GROUPS, PI1_LINKAGE, relief_share
 from scaling.data.recordings import dataset_hash
 from scaling.dimensions.group_choice import POSE_GROUPS
-from scaling.evaluation.conformal import RowRisk
 from scaling.evaluation.generalisation import (
     PRODUCT_LINE_NET,
-    WARN_VARIANTS,
     Candidate,
     LeaveMachineOut,
     cross_fit_served,
@@ -55,27 +51,6 @@ from scaling.runs.provenance import code_version, versions
 #: interval and error score are also judged on the calibration machines, each left out in turn.
 SERVED = ("ffnn-statics (pairs, π1 = F21/F21_linkage)", "ensemble-statics (pairs, π1 = F21/F21_linkage)",
           "ensemble-statics, 3 nearest sources")
-#: The served risk's features tried beside the served ones (label → the extra column from a calibration row, put
-#: before the ensemble's spread), judged on the calibration machines each left out in turn: the matched source
-#: row's conditioning (π1 = F21 / F21_linkage is ill-conditioned where its tilt load is near zero). Not served.
-RISK_CANDIDATES: dict[str, Callable[[pd.DataFrame], np.ndarray]] = {
-    "+ ln tilt load of the source row": lambda r: np.log(np.maximum(np.abs(r["source_tilt_load"].to_numpy(float)),
-                                                                    RowRisk.TILT_LOAD_FLOOR)),
-    "+ |ln π1| of the source row": lambda r: np.abs(np.log(r["source_pi1"].to_numpy(float))),
-}
-
-
-def risk_candidates(rows: pd.DataFrame) -> dict[str, dict[str, Any]]:
-    """:meth:`CrossFit.summary <scaling.evaluation.generalisation.CrossFit.summary>` of the served risk's features
-    and of each of :data:`RISK_CANDIDATES` added to them, on the calibration rows ``rows`` left out in turn."""
-    served = [f"served_{k}" for k in range(len(RowRisk.FEATURES))]
-    out = {"served": cross_fit_served(rows, features=served).summary()}
-    for label, column in RISK_CANDIDATES.items():
-        extra = rows.assign(candidate=column(rows))
-        out[label] = cross_fit_served(extra, features=[*served[:-1], "candidate", served[-1]]).summary()
-    return out
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=Path(tempfile.gettempdir()) / "scaletwin-bench-product-line")
@@ -127,8 +102,6 @@ def main() -> None:
     result = evaluate(frame, split, candidates, progress=print)
     cross_fit = {name: cross_fit_served(rows).summary() for name, rows in result.calibration_rows.items()
                  if name in SERVED}
-    candidates_cf = {name: risk_candidates(rows) for name, rows in result.calibration_rows.items()
-                     if name in (*SERVED, "ffnn-statics, 3 nearest sources")}
     load.append(os.getloadavg()[0])
     table = result.frame()
     out = Path(args.out)
@@ -140,7 +113,7 @@ def main() -> None:
             "groups": {"eq10": [g.expression() for g in eq10], "linkage": [g.expression() for g in linkage]},
             "data_hash": dataset_hash(frame.drop(columns=["episode_key"])), "fit_seconds": result.fit_seconds,
             "extrapolation": result.extrapolation, "quick": args.quick, "test_seed": args.test_seed,
-            "cross_fit": cross_fit, "risk_candidates": candidates_cf,
+            "cross_fit": cross_fit,
             "relief_share": relief_share(frame, split.specs).round(3).to_dict()}
     out.with_suffix(".json").write_text(json.dumps(meta, indent=1, default=str))
     text = report(pd.read_csv(out.with_suffix(".csv")), meta)  # from the file, so that --render gives the same
@@ -156,47 +129,27 @@ def cross_fit_lines(cross_fit: dict[str, dict]) -> list[str]:
     lines = ["## On the calibration machines, each left out in turn", "",
              "Where the served interval's bound and the warning threshold were chosen, without the test machines "
              "(`scaling.evaluation.generalisation.cross_fit_served`): for each of the calibration machines, the "
-             "interval and the error score are fitted on the others and judged on it. Bounds: 90 % of the rows of "
+             "interval and its risk are fitted on the others and judged on it. Bounds: 90 % of the rows of "
              "the median calibration machine (served), of 90 % of them (before), of an average machine (pooled); "
              "'floor k': the width √(s(x)² + σ0²) with a floor σ0 = k × the median scale shared by every row "
-             "(a machine-level error part). Warnings: the served threshold and the ones compared.", "",
+             "(a machine-level error part). Warnings: the served one (the interval's risk of a miss of more "
+             "than 10 %, at 0.5 or above) and logistic error scores on the served features (the served "
+             "warning before).", "",
              "| model | bound | 90 % coverage min–max | median | machines in 85–95 % |", "|---|---|---|---|---|"]
     for name, cf in cross_fit.items():
         for label, c in cf["coverage"].items():
             lines.append(f"| {name} | {label} | {c['min']:.2f}–{c['max']:.2f} | {c['median']:.2f} | "
                          f"{c['in_band']} of {c['machines']} |")
-    lines += ["", "| model | warning threshold | rows warned on, median / max | machines above 5 % | "
-              "served-risk AUROC, rows > 3 / 5 / 10 % off (rows) [without the ensemble's spread] |",
+    lines += ["", "| model | warning | rows warned on, median / max | machines above 5 % | "
+              "served-risk AUROC, rows > 3 / 5 / 10 % off (rows) [logistic error score] |",
               "|---|---|---|---|---|"]
     for name, cf in cross_fit.items():
         auc = " / ".join(f"{cf['auroc'][k]:.2f} ({cf['rows_over'][k]})" for k in cf["auroc"])
-        if cf.get("auroc_without_spread"):
-            auc += " [" + " / ".join(f"{v:.2f}" for v in cf["auroc_without_spread"].values()) + "]"
+        if cf.get("auroc_logistic"):
+            auc += " [" + " / ".join(f"{v:.2f}" for v in cf["auroc_logistic"].values()) + "]"
         for label, w in cf["warned"].items():
             lines.append(f"| {name} | {label} | {100 * w['median']:.1f} % / {100 * w['max']:.1f} % | "
                          f"{w['above_5pct']} | {auc} |")
-    return [*lines, ""]
-
-
-def candidate_lines(tried: dict[str, dict[str, dict]]) -> list[str]:
-    """The Markdown table of the served risk's candidate features (:data:`RISK_CANDIDATES`) on the calibration
-    machines, each left out in turn (empty for results written before it existed)."""
-    if not tried:
-        return []
-    warn = next(iter(WARN_VARIANTS))
-    lines = ["### Served risk: features tried", "",
-             "The served risk's features and each candidate added to them (the matched source row's conditioning; "
-             "not served), fitted on the other calibration machines and judged on the one left out, with the "
-             "served warning threshold.", "",
-             "| model | risk features | AUROC, rows > 3 / 5 / 10 % off | rows warned on, median / max | "
-             "machines above 5 % |", "|---|---|---|---|---|"]
-    for name, by_label in tried.items():
-        for label, cf in by_label.items():
-            w = cf["warned"][warn]
-            auc = " / ".join(f"{v:.3f}" for v in cf["auroc"].values())
-            cell = label.replace("|", "\\|")  # a Markdown cell may not hold a bare pipe
-            lines.append(f"| {name} | {cell} | {auc} | {100 * w['median']:.2f} % / {100 * w['max']:.2f} % | "
-                         f"{w['above_5pct']} |")
     return [*lines, ""]
 
 
@@ -226,7 +179,6 @@ def report(table: pd.DataFrame, meta: dict) -> str:
         "90 % of the rows of the median calibration machine "
         "(`scaling.evaluation.conformal.machine_level_quantile`; chosen on the calibration machines, below).", "",
         *cross_fit_lines(meta.get("cross_fit", {})),
-        *candidate_lines(meta.get("risk_candidates", {})),
         "## Over the drawn test machines", "",
         "| model | dynamic rows: MAPE median / worst [%] | static rows: MAPE median / worst [%] | "
         "peak F21 error median [%] | "
@@ -283,13 +235,12 @@ def report(table: pd.DataFrame, meta: dict) -> str:
                      f"{shares(ex.get('row_risk_false_alarms', {}).get(name, {}))} | {fmt(a)} | "
                      f"{fmt(ex['auroc_ensemble_spread'].get(name))} |")
     lines += ["", "Served risk (`scaling.evaluation.conformal.RowRisk`, what a checkpoint such as `statics-pl` "
-              "computes per row): the same kind of score on what a served model knows, the novelty of its feature "
-              "row, |ln δ1|, whether the bucket is at rest, the tilt load (the tilt cylinder's loaded-chamber "
-              "pressure over its relief pressure) and an ensemble's own spread (σ of ln δ1; none for a point model); "
-              "the served interval's scale reads the first three only; it warns "
-              "above a threshold that keeps the warnings to at most 4 % of the rows of every calibration machine. "
-              "Its AUROC is also given for rows more than 3 % and 5 % off: few rows are more than 10 % off, so that "
-              "figure rests on a handful of rows of a few machines."]
+              "computes per row): P(F21 more than 10 % off) read off the served interval "
+              "(`scaling.evaluation.conformal.IntervalRisk`): the share of the median calibration machine's rows "
+              "whose residual over its width exceeds the miss line over this row's width (the width learnt from "
+              "the novelty of the row's features, |ln δ1| and whether the bucket is at rest); it warns where that "
+              "is at least 0.5. Its AUROC is also given for rows more than 3 % and 5 % off: few rows are more than "
+              "10 % off, so that figure rests on a handful of rows of a few machines."]
     lines += ["", "## Every test machine", "",
               "| machine | model | source | dynamic MAPE / median [%] | static MAPE / median [%] | peak [%] | "
               "coverage: learned / spread / served | rows > 10 % off |", "|---|---|---|---|---|---|---|---|"]

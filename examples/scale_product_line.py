@@ -75,10 +75,10 @@ def main() -> None:
           f"max {100 * err.max():.1f} %; the 90 % interval covers {100 * np.mean((truth >= lo) & (truth <= hi)):.0f} %"
           f" of rows")
     if warned.any():
-        print(f"error score: {int(warned.sum())} rows warned as likely more than 10 % off (their mean error "
+        print(f"risk: {int(warned.sum())} rows warned as likely more than 10 % off (their mean error "
               f"{100 * err[warned].mean():.1f} %, the other rows' {100 * err[~warned].mean():.1f} %)")
     else:
-        print("error score: no row warned as likely more than 10 % off")
+        print("risk: no row warned as likely more than 10 % off")
 
 if __name__ == "__main__":
     main()

@@ -16,9 +16,9 @@ q·s(x) with a width s learnt from what the served model knows of the row and q 
 median calibration machine (:class:`scaling.evaluation.conformal.RowInterval`; the bound chosen leaving each
 calibration machine out in turn, :func:`scaling.evaluation.generalisation.cross_fit_served`, whose figures the card
 carries as ``metrics.calibration_cross_fit``); row by row (no novelty query) the pooled group-weighted residual
-quantiles. It also carries an error score served per row
-(:class:`scaling.evaluation.conformal.RowRisk`, ``ScaledForce.risk``): its warnings replace the training-range rule,
-which fired on a quarter of a new machine's rows at 0.5 % error.
+quantiles. It also serves per row the risk that F21 is more than 10 % off, read off that interval
+(:class:`scaling.evaluation.conformal.RowRisk`, ``ScaledForce.risk``), and warns where it is at least one half: its
+warnings replace the training-range rule, which fired on a quarter of a new machine's rows at 0.5 % error.
 
 How to use it: compute the design signals of both machines from their specs, pair every target row with its
 matched source row (:func:`scaling.data.product_line.match_rows`: same kind, nearest in pose and fill) and pass the
@@ -164,7 +164,7 @@ def check_rows(target: pd.DataFrame, groups: tuple[Any, ...]) -> pd.DataFrame:
     digs = target[(target["kind"] == "dig") & judged_rows(target)]
     rows = digs[digs["episode"] == digs["episode"].min()]
     finite = finite_groups(rows, (*groups, PI1_LINKAGE))
-    _, target_vars = served_variables(PI1_LINKAGE, groups, "F21", risk=True)
+    _, target_vars = served_variables(PI1_LINKAGE, groups, "F21")
     return rows[finite][["machine", "episode", "t", *target_vars]].reset_index(drop=True)
 
 
@@ -173,9 +173,8 @@ def held_out_metrics(result: GeneralisationResult, name: str, presets: tuple[str
     """(per held-out machine, summary over the drawn ones, ``presets`` left out) of the judged model ``name``: F21
     errors, the served interval's coverage, the served error score's warnings, matched direct-Pi beside them.
 
-    Where no error score was learnt (no calibration row more than 10 % off, or every one:
-    ``result.extrapolation["row_risk_unavailable"]``), the risk figures are None and the summary's
-    ``risk_unavailable`` says why; otherwise ``risk_unavailable`` is None."""
+    Where no risk was calibrated (``result.extrapolation["row_risk_unavailable"]``), the risk figures are None and
+    the summary's ``risk_unavailable`` says why; otherwise ``risk_unavailable`` is None."""
     table = result.frame()
     ours = table[table["model"] == name].set_index("machine")
     base = table[table["model"] == "direct-Pi (nearest machine)"].set_index("machine")
@@ -218,7 +217,7 @@ def calibration_cross_fit(result: GeneralisationResult, name: str) -> dict[str, 
 
 
 def risk_unavailable(result: GeneralisationResult, name: str) -> str | None:
-    """Why the judged model ``name`` has no served error score (None: it has one)."""
+    """Why the judged model ``name`` has no served risk (None: it has one)."""
     risk = result.row_risk.get(name)
     if risk is None:
         return "no error score was fitted for this model"
@@ -231,7 +230,7 @@ def card_fields(model: DeltaModel, result: GeneralisationResult, reference: pd.S
     assert model.groups_ is not None
     name = cfg.name
     inputs = tuple(model_groups(model)[1])
-    source_vars, target_vars = served_variables(PI1_LINKAGE, inputs, "F21", risk=True)
+    source_vars, target_vars = served_variables(PI1_LINKAGE, inputs, "F21")
     residual, machines = result.calibration[name]
     quantiles = {str(c): [-group_weighted_quantile(-residual, machines, (1 + c) / 2),
                           group_weighted_quantile(residual, machines, (1 + c) / 2)] for c in COVERAGES}
@@ -247,7 +246,7 @@ def card_fields(model: DeltaModel, result: GeneralisationResult, reference: pd.S
                               "risk_unavailable": risk_unavailable(result, cfg.multi_name),
                               "description": f"from {cfg.sources} sources (ScalingModel.scale_force_sources): the "
                                              "geometric mean of the F21 each source gives; its ln δ1 (that of the "
-                                             "first source which recovers the mean) ± q·s(x) and its error score "
+                                             "first source which recovers the mean) ± q·s(x) and the risk read off it "
                                              "calibrated on the calibration machines, each predicted from its "
                                              f"{cfg.sources} nearest training machines"},
                  "metrics": {"held_out_machines": per_k, "summary": summary_k}}
@@ -302,22 +301,19 @@ def card_fields(model: DeltaModel, result: GeneralisationResult, reference: pd.S
             "calibration_cross_fit": calibration_cross_fit(result, name),
             **({"calibration_cross_fit_multi_source": calibration_cross_fit(result, cfg.multi_name)}
                if multi else {}),
-            "calibration_cross_fit_note": "the served interval (every bound compared) and error score (every "
-                                          "warning threshold compared) fitted on all calibration machines but one "
+            "calibration_cross_fit_note": "the served interval (every bound compared), its risk and the logistic "
+                                          "error scores compared with it fitted on all calibration machines but one "
                                           "and judged on it, each in turn (scaling.evaluation.generalisation."
                                           "cross_fit_served); where the served bound and threshold were chosen",
-            "risk_note": "served per row (ScaledForce.risk): P(F21 more than 10 % off) from the novelty of the "
-                         "row's features among the training pairs', |ln δ1|, whether the bucket is at rest, the "
-                         "tilt load (tilt-cylinder force over its relief force) and, for an ensemble, its own "
-                         "spread (σ of ln δ1), "
-                         "fitted on the calibration machines; risk_auroc: how well it separates the held-out "
-                         "machines' rows more than 10 % off (0.5 = chance); it warns above a threshold that keeps "
-                         "the warnings to at most 4 % of the rows of every calibration machine; risk_auroc_at: the "
-                         "same AUROC for rows more than 3 % and 5 % off; false alarms: "
-                         "the share of rows at most 10 % off that it warns on; where no calibration row was more "
-                         "than 10 % off (or every one was) no error score can be learnt: risk_unavailable says so, "
-                         "the risk figures are null, ScaledForce.risk is None and the served model says so "
-                         "(ScalingModel.risk_unavailable); the interval is served as usual",
+            "risk_note": "served per row (ScaledForce.risk): P(F21 more than 10 % off), read off the served "
+                         "interval (scaling.evaluation.conformal.IntervalRisk): the share of the median calibration "
+                         "machine's rows whose residual over its width exceeds the miss line over this row's width "
+                         "(a power-law tail beyond the 99 % bound); it warns where that is at least 0.5. "
+                         "risk_auroc: how well it separates the held-out machines' rows more than 10 % off (0.5 = "
+                         "chance); risk_auroc_at: the same for rows more than 3 % and 5 % off; false alarms: the "
+                         "share of rows at most 10 % off that it warns on. Where a card has no risk, "
+                         "risk_unavailable says why, the risk figures are null, ScaledForce.risk is None and the "
+                         "served model says so (ScalingModel.risk_unavailable); the interval is served as usual",
             "note": "machines never trained on nor used for calibration (drawn with another seed, plus the mini and "
                     "wa475 presets); rows after start-up settling with F21 > 5 % of the machine's peak; dynamic = "
                     "dig cycles and moves, static = bucket held still; source = the nearest training machine by "

@@ -15,14 +15,14 @@ Card fields (besides the common ones, :mod:`zoo.checkpoint`):
 ``interval``          method (``residual-quantiles``, ``ensemble`` or ``learned-scale``), coverage, quantiles of ln δ1
                       residuals; ``learned-scale`` adds the per-row interval
                       (:class:`scaling.evaluation.conformal.RowInterval`); ``multi_source`` (product-line cards) the
-                      interval and error score calibrated for several sources
+                      interval and risk calibrated for several sources
                       (:meth:`zoo.serving.ScalingModel.scale_force_sources`)
 ``training_range``    per input group, min/max of the distortion feature g on the training pairs
 ``training``          machines, soils, dataset spec and hashes, pipeline config, seed, code version, fit time
 ``metrics``           held-out episodes (R² of δ1), held-out machines, miniature errors, the check set; product-line
                       cards also ``multi_source``: the held-out machines judged from several sources
-``risk``              (optional) the error score served per row (:class:`scaling.evaluation.conformal.RowRisk`), its
-                      novelty rows in ``risk.safetensors``
+``risk``              (optional) the risk served per row (:class:`scaling.evaluation.conformal.RowRisk`: P(F21
+                      more than 10 % off), read off the interval), its novelty rows in ``risk.safetensors``
 """
 
 from __future__ import annotations
@@ -65,7 +65,7 @@ def save_scaling_model(model: DeltaModel, directory: str | Path, card_fields: Ma
         card_fields: the card's content (:data:`CARD_KEYS` at least; see the module docstring).
         check_rows: a small held-out table (SI; ``episode``, ``t`` and the signals) stored as ``check.csv`` with
             ``name [unit]`` headers, on which the card's ``metrics.check_set`` was measured.
-        risk: an error score the served model computes per row (:class:`~scaling.evaluation.conformal.RowRisk`): its
+        risk: the risk the served model computes per row (:class:`~scaling.evaluation.conformal.RowRisk`): its
             parameters go on the card (``risk``), its novelty rows into ``risk.safetensors``.
     """
     missing = [k for k in CARD_KEYS if k not in card_fields]
@@ -119,12 +119,12 @@ register_builder(KIND, build_scaling_model)
 
 
 def _load_risk(directory: Path, card: Mapping[str, Any]) -> RowRisk | None:
-    """The card's error score (its novelty rows from the hashed ``risk.safetensors``), or None."""
+    """The card's risk (its novelty rows from the hashed ``risk.safetensors``), or None."""
     if "risk" not in card:
         return None
     name = card["risk"].get("file")
     if name not in card["files"]:
-        raise CheckpointError(f"{directory}: the card's error score names {name!r}, which is not a listed file")
+        raise CheckpointError(f"{directory}: the card's risk names {name!r}, which is not a listed file")
     return RowRisk.from_state(card["risk"], load_file(str(directory / name))["novelty_rows"])
 
 

@@ -11,8 +11,8 @@ row; of a longer recording, the row closest to the model's calibrated reference 
 as ``statics-pl``, every target row's nearest source row in pose and fill) or one row per target row;
 without ``--source`` the model's own calibrated reference row is used. A model calibrated for several sources
 (``statics-pl-ens``: 3) takes ``--source`` once per calibrated machine, each paired row by row with the target, and
-scales from their geometric mean with the interval and error score calibrated for that many. A product-line model
-reads design signals no sensor gives (``tilt_ratio``, ``fill``, ``F21_linkage``, ``tilt_load``...); files without
+scales from their geometric mean with the interval and risk calibrated for that many. A product-line model
+reads design signals no sensor gives (``tilt_ratio``, ``fill``, ``F21_linkage``...); files without
 them name each machine's design (``--target-design``, ``--source-design``: a preset, a length ratio, a LoaderSpec
 JSON) and the signals are computed from the pose, cylinder extensions, payload and tilt-cylinder force
 (:func:`scaling.data.product_line.add_design_signals`). The output holds the

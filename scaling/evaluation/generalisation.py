@@ -25,7 +25,7 @@ the dig cycles and the moves between holds) apart.
 
 from __future__ import annotations
 
-import contextlib
+import math
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -43,7 +43,6 @@ from scaling.data.product_line import (
     ProductLine,
     add_design_signals,
     design_descriptor,
-    match_rows,
     matched_pairs,
     nearest_machines,
     on_branch,
@@ -58,6 +57,7 @@ from scaling.evaluation.conformal import (
     ExtrapolationScore,
     GroupConformal,
     InputNovelty,
+    IntervalRisk,
     ResidualScale,
     RowInterval,
     RowRisk,
@@ -72,6 +72,8 @@ PEAK_FRACTION = 0.05
 MISS = 0.10
 #: Training feature rows kept per model in :attr:`GeneralisationResult.training_sample`.
 TRAINING_SAMPLE = 3000
+#: Floor of the tilt load inside its logarithm (a cylinder at rest under no load would give −inf).
+TILT_LOAD_FLOOR = 1e-4
 #: Error lines (relative) at which the served risk's AUROC is also reported: with few rows more than :data:`MISS`
 #: off, the 10 % line alone rests on a handful of rows.
 MISS_LINES = (0.03, 0.05, 0.10)
@@ -223,9 +225,10 @@ class GeneralisationResult:
     row_risk: dict[str, RowRisk] = field(default_factory=dict)
     row_interval: dict[str, RowInterval] = field(default_factory=dict)
     #: per model, every calibration row: ``machine``, ``residual`` (ln δ1 actual − predicted), ``error`` (relative
-    #: F21 error), the first source's matched row's ``source_tilt_load`` (1) and ``source_pi1`` (π1 of the source
-    #: row, 1) and the served features (:attr:`RowRisk.FEATURES <scaling.evaluation.conformal.RowRisk.FEATURES>`
-    #: as ``served_0``…); what the intervals are tuned on (leave-machine-out over the calibration machines)
+    #: F21 error), ``ln_spread`` (an ensemble's σ of ln δ1; 0 for a point model), ``ln_design_distance``,
+    #: ``ln_tilt_load`` (tilt-cylinder force over its relief force, floored at :data:`TILT_LOAD_FLOOR`) and the
+    #: served features (:attr:`RowRisk.FEATURES <scaling.evaluation.conformal.RowRisk.FEATURES>` as ``served_0``…);
+    #: what the intervals are tuned on (leave-machine-out over the calibration machines)
     calibration_rows: dict[str, pd.DataFrame] = field(default_factory=dict)
 
     def frame(self) -> pd.DataFrame:
@@ -293,6 +296,13 @@ def combine_sources(model: DeltaModel | None, per_source: Sequence[DeltaDataset]
         _, exponent = scaled_variable(first.output_group, first.target_variable)
         log_pred = log_pred + float(exponent) * (logs[0] - np.log(np.abs(value)))
     return first, log_pred, scale, value
+
+
+def miss_log_bound(pairs: DeltaDataset, miss: float = MISS) -> float:
+    """The miss line in ln δ1 units: a relative error ``miss`` of the scaled variable (F21), which goes with δ1 to
+    the power −1/e (e its exponent in the output group), is |e|·ln(1 + ``miss``) of ln δ1."""
+    _, exponent = scaled_variable(pairs.output_group, pairs.target_variable)
+    return abs(float(exponent)) * math.log1p(miss)
 
 
 def _errors(pred: np.ndarray, actual: np.ndarray) -> np.ndarray:
@@ -378,10 +388,7 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
                                     (kind == "static").astype(float)])
         g = None if models[name] is None else models[name].features(pairs)
         tilt_load = tgt["tilt_load"].to_numpy(float)[rows]
-        first = source_rows[sources(name, target)[0]]  # the first source's matched row of every pair
-        source_load = first["tilt_load"].to_numpy(float)[match_rows(first, tgt)][rows]
-        return _Predicted(pairs, kind, log_pred, scale, pred, f21, _errors(pred, f21), features, tilt_load, g,
-                          source_load)
+        return _Predicted(pairs, kind, log_pred, scale, pred, f21, _errors(pred, f21), features, tilt_load, g)
 
     calibrators: dict[str, GroupConformal] = {}
     spread_calibrators: dict[str, GroupConformal] = {}
@@ -404,23 +411,19 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
         except ValueError as exc:  # no calibration row missed (or every one did): no risk to learn
             say(f"{name}: no error score ({exc})")
         if models[name] is not None:
-            # the served interval needs only the novelty; the served error score may be missing (RowRisk.score None)
+            # the served interval and the risk read off it (RowRisk.score: an IntervalRisk)
             cal_g, cal_log_pred = np.concatenate([c.g for c in cal]), np.concatenate([c.log_pred for c in cal])
-            cal_load = np.concatenate([c.tilt_load for c in cal])
-            cal_spread = np.concatenate([c.scale for c in cal])  # an ensemble's σ of ln δ1; ones for a point model
-            risk = row_risks[name] = RowRisk.fit(training_sample[name], cal_g, cal_log_pred, features[:, -1],
-                                                 cal_load, np.concatenate([c.err for c in cal]), grp, miss=MISS,
-                                                 seed=seed, spread=cal_spread)
-            if risk.score is None:
-                say(f"{name}: no served error score ({risk.unavailable})")
-            served_cal = RowRisk.features(risk.novelty, cal_g, cal_log_pred, features[:, -1], cal_load, cal_spread)
-            row_intervals[name] = RowInterval.fit(served_cal, residual, grp)
+            static = features[:, -1]
+            risk = row_risks[name] = RowRisk.fit(training_sample[name], cal_g, cal_log_pred, static, residual, grp,
+                                                 miss=MISS, log_bound=miss_log_bound(cal[0].pairs), seed=seed)
+            assert risk.score is not None  # a split has at least two calibration machines
+            served_cal = RowRisk.features(risk.novelty, cal_g, cal_log_pred, static)
+            row_intervals[name] = risk.score.interval
+            load = np.abs(np.concatenate([c.tilt_load for c in cal]))
             calibration_rows[name] = pd.DataFrame({"machine": grp, "residual": residual,
                                                    "error": np.concatenate([c.err for c in cal]),
                                                    "ln_spread": features[:, 0], "ln_design_distance": features[:, 3],
-                                                   "source_tilt_load": np.concatenate([c.source_tilt_load
-                                                                                       for c in cal]),
-                                                   "source_pi1": np.concatenate([c.pairs.pi1_source for c in cal]),
+                                                   "ln_tilt_load": np.log(np.maximum(load, TILT_LOAD_FLOOR)),
                                                    **{f"served_{k}": served_cal[:, k]
                                                       for k in range(served_cal.shape[1])}})
 
@@ -440,8 +443,7 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
             inside_served = np.full(len(p.err), np.nan)
             served_features = None  # what a served checkpoint knows of each row: one novelty query per row
             if name in row_risks and p.g is not None:
-                served_features = RowRisk.features(row_risks[name].novelty, p.g, p.log_pred, p.features[:, -1],
-                                                   p.tilt_load, p.scale)
+                served_features = RowRisk.features(row_risks[name].novelty, p.g, p.log_pred, p.features[:, -1])
                 half = row_intervals[name].half_width(served_features, 0.9)
                 inside_served = (np.abs(p.pairs.log_delta - p.log_pred) <= half).astype(float)
             results.append(_summarise(m, name, "+".join(sources(name, m)), p.err, p.kind, p.pred, p.f21, inside,
@@ -503,8 +505,7 @@ ERROR_FEATURES = ("ln σ of ln δ1 (ensembles; 0 otherwise)", "ln input novelty"
 class _Predicted:
     """One model's prediction for one machine's judged rows: the pairs, each pair's row kind (:func:`row_kinds`),
     log δ1 and its scale, F21 predicted and actual (N), relative error, the error score's features
-    (:data:`ERROR_FEATURES`), the target's tilt load (1), the model's feature rows g (None for direct-Pi) and the
-    tilt load (1) of the first source's matched row of every pair."""
+    (:data:`ERROR_FEATURES`), the target's tilt load (1) and the model's feature rows g (None for direct-Pi)."""
 
     pairs: DeltaDataset
     kind: np.ndarray
@@ -516,8 +517,6 @@ class _Predicted:
     features: np.ndarray
     tilt_load: np.ndarray
     g: np.ndarray | None = None
-    #: the tilt load (1) of the first source's matched row of every pair
-    source_tilt_load: np.ndarray | None = None
 
 
 def kinds(frame: pd.DataFrame) -> np.ndarray:
@@ -567,30 +566,33 @@ INTERVAL_VARIANTS: dict[str, dict[str, Any]] = {
     "median machine, floor 1": {"floor": 1.0},
     "median machine, floor 2": {"floor": 2.0},
 }
-#: The warning thresholds :func:`cross_fit_served` compares (label → (warn_quantile, machine_share) of
-#: :class:`~scaling.evaluation.conformal.ErrorScore`); the first is the one served (:class:`RowRisk`).
+#: The warnings :func:`cross_fit_served` compares beside the served one (the interval's risk at P ≥ 0.5,
+#: :class:`~scaling.evaluation.conformal.IntervalRisk`): label → (warn_quantile, machine_share) of a logistic
+#: :class:`~scaling.evaluation.conformal.ErrorScore` on the served features and :data:`LOGISTIC_EXTRA` (the
+#: served risk before).
+SERVED_WARNING = "P(miss) ≥ 0.5 from the interval (served)"
+LOGISTIC_EXTRA = ("ln_tilt_load", "ln_spread")
 WARN_VARIANTS: dict[str, tuple[float, float]] = {
-    "4 % of every machine's rows (served)": (RowRisk.WARN_QUANTILE, RowRisk.WARN_MACHINE_SHARE),
-    "5 % of the rows of 90 % of machines (before)": (0.95, 0.9),
-    "3 % of the rows of 90 % of machines": (0.97, 0.9),
+    "logistic, 4 % of every machine's rows (before)": (0.96, 1.0),
+    "logistic, 5 % of the rows of 90 % of machines": (0.95, 0.9),
 }
 
 
 @dataclass
 class CrossFit:
-    """The served interval and error score judged on the calibration machines, each left out in turn: fitted on
-    the others, applied to it (:func:`cross_fit_served`). ``coverage``: machine × interval variant, the share of
-    the machine's rows inside the interval; ``warned``: machine × warning variant, the share of its rows warned on;
-    ``auroc``: miss line → AUROC of the out-of-machine risk for rows more than that off (NaN where no rows are);
-    ``auroc_without_spread``: the same for the risk fitted without its last feature (an ensemble's spread: what the
-    served risk read before it; for a point model the same figures); ``rows_over``: miss line → calibration rows
-    more than that off."""
+    """The served interval and risk judged on the calibration machines, each left out in turn: fitted on the
+    others, applied to it (:func:`cross_fit_served`). ``coverage``: machine × interval variant, the share of the
+    machine's rows inside the interval; ``warned``: machine × warning (:data:`SERVED_WARNING`, then
+    :data:`WARN_VARIANTS`), the share of its rows warned on; ``auroc``: miss line → AUROC of the out-of-machine
+    served risk for rows more than that off (NaN where no rows are); ``auroc_logistic``: the same for the logistic
+    error score (NaN where no calibration machine kept had a miss to learn from); ``rows_over``: miss line →
+    calibration rows more than that off."""
 
     coverage: pd.DataFrame
     warned: pd.DataFrame
     auroc: dict[float, float]
     rows_over: dict[float, int]
-    auroc_without_spread: dict[float, float] = field(default_factory=dict)
+    auroc_logistic: dict[float, float] = field(default_factory=dict)
 
     def summary(self, low: float = 0.85, high: float = 0.95) -> dict[str, Any]:
         """Per interval variant: min, max and median coverage and the machines in [low, high]; per warning variant:
@@ -600,49 +602,53 @@ class CrossFit:
         warn = {k: {"median": float(w.median()), "max": float(w.max()), "above_5pct": int((w > 0.05).sum())}
                 for k, w in self.warned.items()}
         return {"coverage": cov, "warned": warn, "auroc": {str(k): v for k, v in self.auroc.items()},
-                "auroc_without_spread": {str(k): v for k, v in self.auroc_without_spread.items()},
+                "auroc_logistic": {str(k): v for k, v in self.auroc_logistic.items()},
                 "rows_over": {str(k): v for k, v in self.rows_over.items()}}
 
 
 def cross_fit_served(rows: pd.DataFrame, *, coverage: float = 0.9, miss: float = MISS,
-                     features: Sequence[str] | None = None) -> CrossFit:
-    """Leave each calibration machine out in turn: fit the served interval (every :data:`INTERVAL_VARIANTS` bound)
-    and the served error score (:class:`RowRisk`'s, thresholds of :data:`WARN_VARIANTS`) on the other machines'
-    rows of ``rows`` (:attr:`GeneralisationResult.calibration_rows`) and judge them on the machine left out.
+                     log_bound: float | None = None) -> CrossFit:
+    """Leave each calibration machine out in turn: fit the served interval (every :data:`INTERVAL_VARIANTS` bound),
+    the served risk read off it (:class:`~scaling.evaluation.conformal.IntervalRisk`) and the logistic error
+    scores of :data:`WARN_VARIANTS` on the other machines' rows of ``rows``
+    (:attr:`GeneralisationResult.calibration_rows`) and judge them on the machine left out.
 
-    This is where the served interval's bound and the warning threshold were chosen: on machines never trained
-    on, without the test machines. Needs at least three calibration machines (the interval's scale is
-    cross-fitted again inside the ones kept). ``features``: the columns of ``rows`` the error score reads, the
-    interval's first (default ``served_0``…, the served features :attr:`RowRisk.FEATURES`); a candidate feature is
-    judged here by passing other columns."""
+    This is where the served interval's bound and the warning were chosen: on machines never trained on, without
+    the test machines. Needs at least three calibration machines (the interval's scale is cross-fitted again inside
+    the ones kept). ``log_bound``: the miss line in ln δ1 units (default ln(1 + ``miss``), F21 with δ1 to the
+    power ±1, as π1 = F21 / F21_linkage)."""
     machines = rows["machine"].astype(str).to_numpy()
     names = np.unique(machines)
     if names.size < 3:
         raise ValueError(f"cross-fitting over calibration machines needs at least three, got {names.size}")
-    columns = list(features) if features is not None else [f"served_{k}" for k in range(len(RowRisk.FEATURES))]
-    x = rows[columns].to_numpy(float)
+    x = rows[[f"served_{k}" for k in range(len(RowRisk.FEATURES))]].to_numpy(float)
+    x_logistic = np.column_stack([x, rows[list(LOGISTIC_EXTRA)].to_numpy(float)])
     residual, error = rows["residual"].to_numpy(float), rows["error"].to_numpy(float)
+    bound = math.log1p(miss) if log_bound is None else float(log_bound)
     cov: dict[str, dict[str, float]] = {k: {} for k in INTERVAL_VARIANTS}
-    warned: dict[str, dict[str, float]] = {k: {} for k in WARN_VARIANTS}
-    risk, risk_without = np.full(len(rows), np.nan), np.full(len(rows), np.nan)
+    warned: dict[str, dict[str, float]] = {k: {} for k in (SERVED_WARNING, *WARN_VARIANTS)}
+    risk, risk_logistic = np.full(len(rows), np.nan), np.full(len(rows), np.nan)
     for held in names:
         out, keep = machines == held, machines != held
         for label, kwargs in INTERVAL_VARIANTS.items():
-            interval = RowInterval.fit(x[keep], residual[keep], machines[keep], coverages=(coverage,), **kwargs)
+            coverages = RowInterval.COVERAGES if not kwargs else (coverage,)
+            interval = RowInterval.fit(x[keep], residual[keep], machines[keep], coverages=coverages, **kwargs)
             cov[label][str(held)] = float(np.mean(np.abs(residual[out]) <= interval.half_width(x[out], coverage)))
+            if not kwargs:  # the served bound: its risk
+                served = IntervalRisk(interval, miss, bound)
+                risk[out] = served.score(x[out])
+                warned[SERVED_WARNING][str(held)] = float(np.mean(served.above(risk[out])))
         for label, (quantile, share) in WARN_VARIANTS.items():
             try:
-                score = ErrorScore(miss, warn_quantile=quantile, machine_share=share).fit(x[keep], error[keep],
-                                                                                       machines[keep])
+                score = ErrorScore(miss, warn_quantile=quantile, machine_share=share).fit(
+                    x_logistic[keep], error[keep], machines[keep])
             except ValueError:  # no miss among the machines kept: no score, no warning
                 warned[label][str(held)] = 0.0
                 continue
-            risk[out] = score.score(x[out])
-            warned[label][str(held)] = float(np.mean(score.above(risk[out])))
-        with contextlib.suppress(ValueError):  # no miss among the machines kept: no score
-            risk_without[out] = ErrorScore(miss).fit(x[keep, :-1], error[keep], machines[keep]).score(x[out, :-1])
-    ok, ok_without = np.isfinite(risk), np.isfinite(risk_without)
+            risk_logistic[out] = score.score(x_logistic[out])
+            warned[label][str(held)] = float(np.mean(score.above(risk_logistic[out])))
+    ok, ok_logistic = np.isfinite(risk), np.isfinite(risk_logistic)
     return CrossFit(pd.DataFrame(cov), pd.DataFrame(warned),
                     {line: auroc(risk[ok], error[ok] > line) for line in MISS_LINES},
                     {line: int(np.sum(error > line)) for line in MISS_LINES},
-                    {line: auroc(risk_without[ok_without], error[ok_without] > line) for line in MISS_LINES})
+                    {line: auroc(risk_logistic[ok_logistic], error[ok_logistic] > line) for line in MISS_LINES})

@@ -35,6 +35,7 @@ from scaling.evaluation.conformal import (
     ExtrapolationScore,
     GroupConformal,
     InputNovelty,
+    IntervalRisk,
     ResidualScale,
     RowInterval,
     RowRisk,
@@ -606,70 +607,101 @@ def test_learned_scale_keeps_coverage_where_errors_are_large_and_small() -> None
         ResidualScale().scale(x)
 
 
-def test_error_scores_survive_their_state() -> None:
-    """InputNovelty, ErrorScore and RowRisk rebuilt from their JSON state (and the novelty rows) score exactly as
-    the fitted ones; mismatched state is refused."""
+def _heavy_tailed_machines(rng: np.random.Generator, n_machines: int, rows: int = 300
+                           ) -> tuple[np.ndarray, ...]:
+    """Calibration-like rows of ``n_machines`` machines: the residual's scale grows ×20 with |ln δ1| (exp of 3 of
+    its standard units), Student-t (4 degrees of freedom) noise and a bias per machine of 0.3 of its scale."""
+    n = n_machines * rows
+    g = rng.normal(size=(n, 4))
+    log_delta = rng.normal(0.0, 0.05, n)
+    static = rng.random(n) < 0.4
+    scale = 0.01 * np.exp(3.0 * (np.abs(log_delta) / 0.05 - 0.8) / 2.0)
+    bias = np.repeat(rng.normal(0.0, 0.3, n_machines), rows)
+    residual = scale * (rng.standard_t(4, n) + bias)
+    return g, log_delta, static, residual, np.repeat(np.arange(n_machines), rows).astype(str)
+
+
+def test_row_risk_is_calibrated_on_machines_it_never_saw() -> None:
+    """The served risk, read off the interval (IntervalRisk), on heavy-tailed residuals whose scale follows |ln δ1|:
+    on 30 new machines the mean predicted P(|residual| > bound) matches the share of rows beyond the bound within
+    a third at three bounds, the rows it warns on (P ≥ 0.5) miss more often than not and those it gives under 5 %
+    miss under 5 % of the time; it ranks the rows by their risk (AUROC > 0.8). It needs no calibration row beyond
+    the bound: with the bound above every calibration residual it still gives a (small) risk."""
+    rng = np.random.default_rng(6)
+    g, log_delta, static, residual, grp = _heavy_tailed_machines(rng, 12)
+    train_g = rng.normal(size=(600, 4))
+    g2, log_delta2, static2, residual2, _ = _heavy_tailed_machines(rng, 30)
+    for bound in (0.02, 0.05, 0.1):
+        risk = RowRisk.fit(train_g, g, log_delta, static, residual, grp, log_bound=bound)
+        p = risk.risk(g2, log_delta2, static2)
+        miss = np.abs(residual2) > bound
+        assert np.mean(p) == pytest.approx(np.mean(miss), rel=0.33)
+        warned = risk.score.above(p)
+        assert warned.any() and np.mean(miss[warned]) > 0.5
+        assert np.mean(miss[p < 0.05]) < 0.05
+        assert auroc(p, miss) > 0.8
+    far = RowRisk.fit(train_g, g, log_delta, static, residual, grp, log_bound=2 * np.abs(residual).max())
+    p = far.risk(g2, log_delta2, static2)
+    assert np.all(p > 0) and np.mean(p) < 1e-3 and len(np.unique(p)) > 0.9 * len(p)  # a tail that still ranks
+
+
+def test_interval_exceedance_follows_the_stored_bounds() -> None:
+    """RowInterval.exceedance is 1 − c at the bound q_c of every stored coverage (for a row of unit width), falls
+    as the miss line grows and follows the power-law tail past the largest coverage; it refuses a miss line that is
+    not positive and IntervalRisk a warning probability outside (0, 1]."""
+    rng = np.random.default_rng(9)
+    g, log_delta, static, residual, grp = _heavy_tailed_machines(rng, 8)
+    risk = RowRisk.fit(rng.normal(size=(300, 4)), g, log_delta, static, residual, grp)
+    interval = risk.score.interval
+    x = RowRisk.features(risk.novelty, g[:50], log_delta[:50], static[:50])
+    w = interval.width(x)
+    for c, q in interval.quantiles.items():
+        at = np.array([interval.exceedance(x[k:k + 1], q * w[k])[0] for k in range(5)])
+        np.testing.assert_allclose(at, 1 - c, rtol=1e-9)
+    lines = np.geomspace(1e-4, 10.0, 40)
+    curve = np.array([interval.exceedance(x[:1], b)[0] for b in lines])
+    assert np.all(np.diff(curve) <= 0) and curve[0] > 0.9 and 0 < curve[-1] < 1e-3
+    levels = sorted(interval.quantiles)
+    q1, q2 = interval.quantiles[levels[-2]], interval.quantiles[levels[-1]]
+    a = np.log((1 - levels[-2]) / (1 - levels[-1])) / np.log(q2 / q1)
+    np.testing.assert_allclose(interval.exceedance(x[:1], 4 * q2 * w[0]), (1 - levels[-1]) * 4.0 ** -a, rtol=1e-9)
+    with pytest.raises(ValueError, match="log_bound"):
+        interval.exceedance(x, 0.0)
+    with pytest.raises(ValueError, match="warn_probability"):
+        IntervalRisk(interval, 0.1, 0.1, warn_probability=0.0)
+
+
+def test_row_risk_and_error_score_survive_their_state() -> None:
+    """InputNovelty, RowRisk (its interval risk) and ErrorScore rebuilt from their JSON state (and the novelty
+    rows) score exactly as the fitted ones; mismatched or older state is refused, and a risk stored as absent
+    survives with its reason and refuses to score."""
     rng = np.random.default_rng(6)
     train_g = rng.normal(size=(600, 4))
-    g, e, grp = rng.normal(size=(900, 4)), np.abs(rng.normal(0, 0.1, 900)), np.repeat(np.arange(3), 300)
-    log_delta, static, load = rng.normal(0, 0.05, 900), rng.random(900) < 0.4, rng.uniform(0.0, 0.6, 900)
-    risk = RowRisk.fit(train_g, g, log_delta, static, load, e * (1 + np.abs(g[:, 0])), grp)
+    g, log_delta, static, residual, grp = _heavy_tailed_machines(rng, 3)
+    risk = RowRisk.fit(train_g, g, log_delta, static, residual, grp)
     params, rows = risk.state()
     again = RowRisk.from_state(json.loads(json.dumps(params)), rows)
-    np.testing.assert_array_equal(again.risk(g, log_delta, static, load), risk.risk(g, log_delta, static, load))
-    assert again.score.threshold_ == risk.score.threshold_
-    with pytest.raises(ValueError, match="rebuild the checkpoint"):  # a card of the three-feature version
-        RowRisk.from_state({**params, "features": params["features"][:3]}, rows)
+    np.testing.assert_array_equal(again.risk(g, log_delta, static), risk.risk(g, log_delta, static))
+    np.testing.assert_array_equal(again.warns(g, log_delta, static), risk.warns(g, log_delta, static))
+    with pytest.raises(ValueError, match="rebuild the checkpoint"):  # a card of the five-feature version
+        RowRisk.from_state({**params, "features": [*params["features"], "ln tilt load", "ln σ of ln δ1"]}, rows)
     with pytest.raises(ValueError, match="do not fit"):
         InputNovelty.from_state(params["novelty"], rows[:, :3])
+    x = RowRisk.features(risk.novelty, g, log_delta, static)
+    score = ErrorScore().fit(x, np.abs(residual) * 5, grp)
+    with pytest.raises(ValueError, match="rebuild the checkpoint"):  # the logistic risk of the version before
+        RowRisk.from_state({**params, "score": score.state()}, rows)
+    np.testing.assert_array_equal(ErrorScore.from_state(json.loads(json.dumps(score.state()))).score(x),
+                                  score.score(x))
     with pytest.raises(ValueError, match="inconsistent"):
-        ErrorScore.from_state({**params["score"], "coef": params["score"]["coef"][:-1]})
-
-
-def test_row_risk_without_a_miss_has_no_score_but_keeps_its_novelty() -> None:
-    """No calibration row more than 10 % off: nothing to learn an error score from. RowRisk.fit says so (score
-    None, the reason in ``unavailable``) instead of raising, keeps the novelty (which the learned interval reads),
-    survives its state, and refuses to give a risk."""
-    rng = np.random.default_rng(7)
-    train_g, g = rng.normal(size=(400, 4)), rng.normal(size=(600, 4))
-    grp = np.repeat(np.arange(3), 200)
-    log_delta, static, load = rng.normal(0, 0.05, 600), rng.random(600) < 0.4, rng.uniform(0.0, 0.6, 600)
-    risk = RowRisk.fit(train_g, g, log_delta, static, load, np.full(600, 0.02), grp)
-    assert risk.score is None and "miss line" in str(risk.unavailable)
-    features = RowRisk.features(risk.novelty, g, log_delta, static, load)
-    assert features.shape == (600, len(RowRisk.FEATURES)) == (600, 5) and np.isfinite(features).all()
-    assert np.all(features[:, -1] == 0.0)  # no spread given: a point model, σ = 1
-    params, rows = risk.state()
-    assert params["score"] is None and params["unavailable"] == risk.unavailable
+        ErrorScore.from_state({**score.state(), "coef": score.state()["coef"][:-1]})
+    bare = RowRisk(risk.novelty, None, "no risk for this test")
+    params, rows = bare.state()
+    assert params["score"] is None and params["unavailable"] == "no risk for this test"
     again = RowRisk.from_state(json.loads(json.dumps(params)), rows)
-    assert again.score is None and again.unavailable == risk.unavailable
-    np.testing.assert_array_equal(RowRisk.features(again.novelty, g, log_delta, static, load), features)
-    with pytest.raises(ValueError, match="no error score was learnt"):
-        again.risk(g, log_delta, static, load)
-
-
-def test_row_risk_reads_an_ensembles_spread() -> None:
-    """Where the misses follow an ensemble's spread σ of ln δ1 (and nothing else the served features see), the
-    served risk fitted with σ ranks the rows of machines it never saw by it (AUROC > 0.8) and the one fitted
-    without σ (a point model: the column constant, weighing nothing) does not (< 0.6)."""
-    rng = np.random.default_rng(8)
-
-    def draw(n_machines: int) -> tuple[np.ndarray, ...]:
-        n = 300 * n_machines
-        sigma = np.exp(rng.normal(-4.0, 1.0, n))
-        error = np.abs(rng.normal(0.0, 1.0, n)) * sigma * 8.0
-        return (rng.normal(size=(n, 3)), rng.normal(0, 0.02, n), rng.random(n) < 0.5, rng.uniform(0.2, 1.0, n),
-                sigma, error, np.repeat(np.arange(n_machines), 300))
-
-    g, log_delta, static, load, sigma, error, grp = draw(8)
-    train_g = rng.normal(size=(500, 3))
-    with_spread = RowRisk.fit(train_g, g, log_delta, static, load, error, grp, spread=sigma)
-    without = RowRisk.fit(train_g, g, log_delta, static, load, error, grp)
-    assert with_spread.score is not None and without.score is not None
-    g2, log_delta2, static2, load2, sigma2, error2, _ = draw(10)
-    miss = error2 > 0.10
-    assert auroc(with_spread.risk(g2, log_delta2, static2, load2, sigma2), miss) > 0.8
-    assert auroc(without.risk(g2, log_delta2, static2, load2), miss) < 0.6
+    assert again.score is None and again.unavailable == bare.unavailable
+    with pytest.raises(ValueError, match="no risk was calibrated"):
+        again.risk(g, log_delta, static)
 
 
 def test_auroc_is_the_pairwise_probability() -> None:

@@ -5,6 +5,7 @@ pooled residual quantile row by row)."""
 from __future__ import annotations
 
 import json
+import math
 import warnings
 from dataclasses import replace
 from pathlib import Path
@@ -17,14 +18,13 @@ from safetensors.numpy import load_file
 import zoo
 from scaling.data.delta_dataset import DeltaDataset
 from scaling.data.product_line import PI1_LINKAGE, match_rows, nearest_machine, nearest_machines
-from scaling.evaluation.conformal import ErrorScore, RowInterval, RowRisk, group_weighted_quantile
+from scaling.evaluation.conformal import IntervalRisk, RowInterval, RowRisk, group_weighted_quantile
 from scaling.evaluation.generalisation import (
     LeaveMachineOut,
     Split,
     finite_groups,
     judged_rows,
     row_kinds,
-    target_rows,
 )
 from scaling.models import load_model
 from scaling.models.fitted import model_groups
@@ -60,13 +60,11 @@ def test_card_reports_every_held_out_machine(built: tuple[Path, Path, ProductLin
     assert not set(card["training"]["machines"]) & set(metrics)  # no held-out machine was trained on
     assert card["training"]["model"]["config"]["include_source"] is True
     summary = card["metrics"]["summary"]
-    if card["risk"]["score"] is None:  # no calibration row missed by > 10 % (or every one did): no error score
-        assert summary["risk_unavailable"] == card["metrics"]["risk_unavailable"] == card["risk"]["unavailable"]
-        assert "miss line" in summary["risk_unavailable"] and summary["risk_auroc"] is None
-        assert all(m["risk_warned_share"] is None and m["risk_false_alarms"] is None for m in metrics.values())
-    else:
-        assert summary["risk_unavailable"] is None and 0 <= summary["risk_auroc"] <= 1
-        assert all(0 <= m["risk_warned_share"] <= 1 for m in metrics.values())
+    # the risk is read off the interval (IntervalRisk): calibrated whether or not a calibration row missed
+    assert card["risk"]["score"]["kind"] == "interval" and card["risk"]["score"]["warn_probability"] == 0.5
+    assert summary["risk_unavailable"] is None
+    assert summary["risk_auroc"] is None or 0 <= summary["risk_auroc"] <= 1  # None: no held-out row 10 % off
+    assert all(0 <= m["risk_warned_share"] <= 1 for m in metrics.values())
 
 
 def test_interval_is_the_calibration_machines_quantile(built: tuple[Path, Path, ProductLineBuild]) -> None:
@@ -114,23 +112,21 @@ def test_served_model_predicts_on_matched_source_rows(built: tuple[Path, Path, P
     np.testing.assert_allclose(out.delta1, model.predict(pairs), rtol=1e-5)
     np.testing.assert_allclose(out.force, pairs.recover(model.predict(pairs)), rtol=1e-5)
     assert np.all(out.lower <= out.force) and np.all(out.force <= out.upper)
-    # the served risk: the card's error score on the model's own features, |ln δ1|, the at-rest rows and the tilt
-    # load, each computed here from the judge's side (the pairs, and the target rows they came from)
+    # the served risk: the card's interval risk on the novelty of the model's own features, |ln δ1| and the
+    # at-rest rows, each computed here from the judge's side (the pairs, and the target rows they came from)
     card = zoo.card(path)
     risk = RowRisk.from_state(card["risk"], load_file(str(path / card["risk"]["file"]))["novelty_rows"])
     static = row_kinds(pairs, tgt) == "static"
-    load = tgt["tilt_load"].to_numpy(float)[target_rows(pairs, tgt)]
-    _check_served_risk(out, risk, model.features(pairs), model.predict_log(pairs), static, load)
+    _check_served_risk(out, risk, model.features(pairs), model.predict_log(pairs), static)
     # the served interval: ln δ1 ± q·s(x) on the same features, F21 = F21_linkage·π1(source)/δ1
     assert out.interval_method == card["interval"]["method"] == "learned-scale"
     half = RowInterval.from_state(card["interval"]["learned_scale"]).half_width(
-        RowRisk.features(risk.novelty, model.features(pairs), model.predict_log(pairs), static, load), 0.9)
+        RowRisk.features(risk.novelty, model.features(pairs), model.predict_log(pairs), static), 0.9)
     np.testing.assert_allclose(out.lower, pairs.recover(model.predict(pairs) * np.exp(half)), rtol=1e-5)
     np.testing.assert_allclose(out.upper, pairs.recover(model.predict(pairs) * np.exp(-half)), rtol=1e-5)
     with pytest.raises(ValueError, match="F21_linkage"):
         served.scale_force(source, tgt.drop(columns=["F21_linkage"]))
-    with pytest.raises(ValueError, match="tilt_load"):  # the error score needs it, though δ1 does not
-        served.scale_force(source, tgt.drop(columns=["tilt_load"]))
+    assert "tilt_load" not in served.target_variables  # nothing served reads it
 
 
 @pytest.mark.slow
@@ -267,13 +263,13 @@ def test_predict_command_computes_the_design_signals_from_the_designs_named(
 
 
 def _check_served_risk(out: zoo.ScaledForce, risk: RowRisk, g: np.ndarray, log_delta: np.ndarray,
-                       static: np.ndarray, load: np.ndarray) -> None:
-    """``out.risk`` is the card's error score on the judge's features, or None where the card has no score."""
+                       static: np.ndarray) -> None:
+    """``out.risk`` is the card's risk on the judge's features, or None where the card has no risk."""
     if risk.score is None:
         assert out.risk is None and out.warned is None
         return
     assert out.risk is not None and np.all((out.risk >= 0) & (out.risk <= 1))
-    np.testing.assert_allclose(out.risk, risk.risk(g, log_delta, static, load), rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(out.risk, risk.risk(g, log_delta, static), rtol=1e-6, atol=1e-9)
 
 
 def _check_risk_column(table: pd.DataFrame, risk: np.ndarray | None) -> None:
@@ -368,10 +364,10 @@ def test_predict_command_takes_one_source_per_calibrated_machine(built: tuple[Pa
     assert "calibrated for 3 source(s), not 2" in capsys.readouterr().err
 
 
-def _resaved(path: Path, out: Path, score: ErrorScore | None, reason: str | None) -> Path:
-    """The checkpoint at ``path`` saved again at ``out`` with the error score ``score`` (one source and three), or,
-    with ``score`` None, as a build that learnt none writes it: the novelty kept (the learned interval reads it),
-    no score, ``reason`` on the card and in its metrics, the risk figures null."""
+def _resaved(path: Path, out: Path, score: IntervalRisk | None, reason: str | None) -> Path:
+    """The checkpoint at ``path`` saved again at ``out`` with the risk ``score`` (one source and three), or, with
+    ``score`` None, as a card without a risk: the novelty kept (the learned interval reads it), no score,
+    ``reason`` on the card and in its metrics, the risk figures null."""
     card = zoo.card(path)
     served = zoo.load(path)
     assert served.risk is not None
@@ -392,14 +388,14 @@ def _resaved(path: Path, out: Path, score: ErrorScore | None, reason: str | None
 
 def test_a_checkpoint_with_an_error_score_serves_it(built: tuple[Path, Path, ProductLineBuild],
                                                      tmp_path: Path) -> None:
-    """Where the card has an error score, the served risk is that score on the served features (computed here
-    from the judge's side: the pairs and the target rows they came from), the rows above its threshold are the
-    warned ones and a warning counts them; from three sources a risk is served too. The score is hand-set here, so
-    this path is tested whichever side of the miss line the tiny line's calibration rows fall."""
+    """The served risk is the card's interval risk on the served features (computed here from the judge's side:
+    the pairs and the target rows they came from), the rows at its warning probability or above are the warned
+    ones and a warning counts them; from three sources a risk is served too. The miss line is set low here
+    (0.1 % of F21), so that rows are warned on whatever the tiny line's errors."""
     path, _, cfg = built
-    score = ErrorScore.from_state({"miss": 0.1, "warn_quantile": 0.95, "l2": 0.01, "machine_share": 0.9,
-                                   "mean": [0.0] * 5, "std": [1.0] * 5, "coef": [-1.0, 0.5, 3.0, -0.5, -0.8, 0.7],
-                                   "threshold": 0.3})
+    served = zoo.load(path)
+    assert served.risk is not None and served.risk.score is not None
+    score = IntervalRisk(served.risk.score.interval, 0.001, math.log1p(0.001))
     scored_path = _resaved(path, tmp_path / "scored", score, None)
     scored, model = zoo.load(scored_path), load_model(scored_path)
     assert scored.risk_unavailable is None and scored.sources_risk_unavailable() is None
@@ -413,11 +409,11 @@ def test_a_checkpoint_with_an_error_score_serves_it(built: tuple[Path, Path, Pro
         out = scored.scale_force(source, tgt.drop(columns=["F21"]))
     pairs = DeltaDataset.from_matched(source, tgt, PI1_LINKAGE, groups)
     static = row_kinds(pairs, tgt) == "static"
-    load = tgt["tilt_load"].to_numpy(float)[target_rows(pairs, tgt)]
     assert scored.risk is not None and scored.risk.score is not None
-    _check_served_risk(out, scored.risk, model.features(pairs), model.predict_log(pairs), static, load)
+    _check_served_risk(out, scored.risk, model.features(pairs), model.predict_log(pairs), static)
     assert out.risk is not None and out.warned is not None
     np.testing.assert_array_equal(out.warned, score.above(out.risk))
+    assert out.warned.any()
     assert any(f"{int(out.warned.sum())} of {len(tgt)} target rows are likely" in str(w.message)
                for w in caught) == bool(out.warned.any())
     _, sources = _matched_sources(frame, cfg.layout.split(), "pl1-0", tgt)
@@ -430,12 +426,11 @@ def test_a_checkpoint_with_an_error_score_serves_it(built: tuple[Path, Path, Pro
 def test_a_checkpoint_without_an_error_score_serves_and_says_so(built: tuple[Path, Path, ProductLineBuild],
                                                                  tmp_path: Path,
                                                                  capsys: pytest.CaptureFixture[str]) -> None:
-    """Where no calibration row is more than 10 % off (or every one is) the build learns no error score: the card
-    says why (``metrics.risk_unavailable``, the risk figures null), the checkpoint still loads and serves the same
+    """A card without a risk (a build that could calibrate none) says why (``metrics.risk_unavailable``, the risk
+    figures null), the checkpoint still loads and serves the same
     forces and learned intervals, from one source and from three, with ``out.risk`` None and the reason in
     ``ScalingModel.risk_unavailable``, and ``scaletwin predict`` says on stderr that no risk column is served. The
-    score is removed from the tiny line's checkpoint here, so this path is tested whichever side of the miss line
-    the tiny line's calibration rows fall."""
+    risk is removed from the tiny line's checkpoint here."""
     from scaletwin.cli import main
 
     path, _, cfg = built

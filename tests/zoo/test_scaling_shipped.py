@@ -152,11 +152,12 @@ def test_product_line_card_states_the_leave_machine_out_proof(name: str) -> None
 
 
 @pytest.mark.parametrize("name", [PRODUCT_LINE, ENSEMBLE_NAME])
-def test_product_line_risk_reads_the_spread_of_an_ensemble_only(name: str) -> None:
-    """On the shipped check set, the served error score reads the row's σ of ln δ1: the ensemble's own spread
-    (positive, not constant, its last served feature ln σ) for ``statics-pl-ens``, none (σ = 1, ln σ = 0) for the
-    point model ``statics-pl``; the risk is the card's score on those features; the card carries the calibration
-    machines' cross-fit figures of its interval and warnings."""
+def test_product_line_risk_agrees_with_its_interval(name: str) -> None:
+    """On the shipped check set the served risk is the card's interval read at the 10 % miss line: a row whose
+    served 90 % interval lies inside ±10 % of its F21 has a risk under 0.1 and one whose 50 % interval reaches past
+    it a risk over 0.5 (two routes to one statement); the rows warned on are those at 0.5 or above; an ensemble
+    reports its own spread beside it (σ of ln δ1, positive and not constant), a point model none. The card carries
+    the calibration machines' cross-fit figures of its interval and warnings."""
     from zoo.serving.inputs import to_matrix
 
     model = zoo.load(name)
@@ -165,16 +166,23 @@ def test_product_line_risk_reads_the_spread_of_an_ensemble_only(name: str) -> No
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", zoo.ExtrapolationWarning)
         out = model.scale_force(None, rows)
-    assert model.risk is not None and out.risk is not None
-    features = model._risk_features(to_matrix(rows, model.target_variables, "target"), out.delta1, out.sigma)
+    assert model.risk is not None and model.risk.score is not None and out.risk is not None
     if name == ENSEMBLE_NAME:
         assert out.sigma is not None and np.all(out.sigma > 0) and np.ptp(out.sigma) > 0
-        np.testing.assert_allclose(features[:, -1], np.log(out.sigma))
     else:
-        assert out.sigma is None and np.all(features[:, -1] == 0.0)
-    assert model.risk.score is not None
+        assert out.sigma is None
+    features = model._risk_features(to_matrix(rows, model.target_variables, "target"), out.delta1)
     np.testing.assert_allclose(out.risk, model.risk.score.score(features), rtol=1e-9)
+    np.testing.assert_array_equal(out.warned, out.risk >= 0.5)
+    line = np.log1p(0.10)
+    half90 = np.log(out.upper / out.force)  # the served 90 % interval, F21 · e^(±h)
+    interval = model.risk.score.interval
+    half50 = interval.half_width(features, 0.5)
+    assert np.all(out.risk[half90 < line] < 0.1) and np.all(out.risk[half50 > line] > 0.5)
+    assert (half90 < line).any()
     cross = model.card["metrics"]["calibration_cross_fit"]
     served = cross["coverage"]["median machine (served)"]
     assert served["machines"] == len(model.card["training"]["calibration_machines"])
     assert 0.0 <= served["min"] <= served["median"] <= served["max"] <= 1.0
+    warned = cross["warned"]["P(miss) ≥ 0.5 from the interval (served)"]
+    assert 0.0 <= warned["median"] <= warned["max"] <= 1.0

@@ -41,7 +41,7 @@ import pandas as pd
 
 from scaling.dimensions.factors import LogDistortion, scaled_variable
 from scaling.dimensions.groups import PiGroup
-from scaling.evaluation.conformal import ErrorScore, RowInterval, RowRisk
+from scaling.evaluation.conformal import IntervalRisk, RowInterval, RowRisk
 from scaling.evaluation.metrics import at_rest
 from scaling.models import DeltaModel
 from scaling.models.fitted import STATIC_STEPS, model_groups
@@ -63,15 +63,13 @@ if TYPE_CHECKING:
     from zoo.serving.stream import Prediction, Stream
 
 
-def served_variables(output: PiGroup, inputs: Sequence[PiGroup], variable: str, *, risk: bool = False
+def served_variables(output: PiGroup, inputs: Sequence[PiGroup], variable: str
                      ) -> tuple[tuple[str, ...], tuple[str, ...]]:
     """(source variables, target variables) of a model: every variable of its groups, the scaled ``variable``
-    (e.g. F21) only on the source side, and on the target side, for a checkpoint with an error score (``risk``),
-    what its features read besides (:attr:`RowRisk.VARIABLES <scaling.evaluation.conformal.RowRisk.VARIABLES>`);
-    the target order is the order of :meth:`ScalingModel.predict_row`."""
+    (e.g. F21) only on the source side; the target order is the order of :meth:`ScalingModel.predict_row`."""
     source = tuple(dict.fromkeys(v for g in (output, *inputs) for v in g.variables))
     target = [v for g in (*inputs, output) for v in g.variables if v != variable]
-    return source, tuple(dict.fromkeys([*target, *(RowRisk.VARIABLES if risk else ())]))
+    return source, tuple(dict.fromkeys(target))
 
 
 def _bounds(force: np.ndarray, half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -153,8 +151,7 @@ class ScalingModel:
         self.unit = str(card["predicts"]["unit"])
         self._inv_exp = 1.0 / float(exponent)
         rest = {k: e for k, e in output.exponents.items() if k != self.variable}
-        self.source_variables, self.target_variables = served_variables(output, inputs, self.variable,
-                                                                         risk=risk is not None)
+        self.source_variables, self.target_variables = served_variables(output, inputs, self.variable)
         rest_group = PiGroup(rest) if rest else PiGroup({self.target_variables[0]: Fraction(1)})  # unused if no rest
         self._plan_t = GroupPlan.build([*inputs, rest_group], self.target_variables)
         self._has_rest = bool(rest)
@@ -178,15 +175,15 @@ class ScalingModel:
             self._row_interval = RowInterval.from_state(interval["learned_scale"])
         self._quantiles = {float(c): (float(q[0]), float(q[1]))
                            for c, q in interval.get("log_delta_residual_quantiles", {}).items()}
-        #: (sources, interval, error score or None where none was learnt) of :meth:`scale_force_sources`, where the
+        #: (sources, interval, risk or None where none was calibrated) of :meth:`scale_force_sources`, where the
         #: card calibrates one
-        self._multi: tuple[int, RowInterval, ErrorScore | None] | None = None
+        self._multi: tuple[int, RowInterval, IntervalRisk | None] | None = None
         if "multi_source" in interval:
             if risk is None:
                 raise ValueError("a multi-source interval needs the checkpoint's risk (its novelty rows)")
             multi = interval["multi_source"]
             self._multi = (int(multi["sources"]), RowInterval.from_state(multi["learned_scale"]),
-                           None if multi.get("risk") is None else ErrorScore.from_state(multi["risk"]))
+                           None if multi.get("risk") is None else IntervalRisk.from_state(multi["risk"]))
         rng = card["training_range"]
         g_min, g_max = np.asarray(rng["min"], dtype=float), np.asarray(rng["max"], dtype=float)
         n_features = transform.n_features(len(inputs))
@@ -336,14 +333,14 @@ class ScalingModel:
 
     @property
     def risk_unavailable(self) -> str | None:
-        """Why this checkpoint serves no per-row error score (``ScaledForce.risk`` None), or None where it serves
-        one. A product-line checkpoint learns its error score on the calibration machines' rows more than 10 % off;
-        where none was (or every row was), there is nothing to learn it from and the card says so
-        (``metrics.risk_unavailable``); its interval is served as usual. Checkpoints of a kind that never has an
-        error score (the paper's) say so too."""
+        """Why this checkpoint serves no per-row risk (``ScaledForce.risk`` None), or None where it serves one. A
+        product-line checkpoint reads its risk off its interval calibrated on held-out machines
+        (:class:`scaling.evaluation.conformal.IntervalRisk`); a card without one says why
+        (``metrics.risk_unavailable``) and its interval is served as usual. Checkpoints of a kind that never has a
+        risk (the paper's) say so too."""
         if self.risk is None:
             return "this checkpoint has no error score (its warnings come from the training range)"
-        return None if self.risk.score is not None else (self.risk.unavailable or "no error score was learnt")
+        return None if self.risk.score is not None else (self.risk.unavailable or "no risk was calibrated")
 
     def sources_risk_unavailable(self) -> str | None:
         """As :attr:`risk_unavailable`, for :meth:`scale_force_sources` (None: it serves a risk)."""
@@ -403,7 +400,7 @@ class ScalingModel:
         # the sources' σ combined as the judge does (scaling.evaluation.generalisation.combine_sources): RMS
         sigma = (None if outs[0].sigma is None
                  else np.sqrt(np.mean([o.sigma**2 for o in outs if o.sigma is not None], axis=0)))
-        features = bound[0]._risk_features(x, delta, sigma)
+        features = bound[0]._risk_features(x, delta)
         cov = self._spread(coverage)[0]
         try:
             half = interval.half_width(features, cov) * abs(self._inv_exp)
@@ -447,7 +444,7 @@ class ScalingModel:
         method = "residual-quantiles" if self._row_interval is not None else self.interval_method
         if self.risk is not None and not isinstance(self.kernel, GRUKernel):  # its warnings replace the range's
             if risk:
-                features = self._risk_features(x, delta, spread_of_rows)
+                features = self._risk_features(x, delta)
                 if self._row_interval is not None:  # δ1·e^(±h) gives F21·e^(∓h/exponent)
                     lo, hi = _bounds(force, self._row_interval.half_width(features, spread[0]) * self._inv_exp)
                     method = self.interval_method
@@ -458,31 +455,31 @@ class ScalingModel:
         return ScaledForce(self.variable, self.unit, force, lo, hi, delta, outside, spread[0], method, row_risk,
                            warned, spread_of_rows)
 
-    def _scored(self, score: ErrorScore, features: np.ndarray, context: str, stacklevel: int
+    def _scored(self, score: IntervalRisk, features: np.ndarray, context: str, stacklevel: int
                 ) -> tuple[np.ndarray, np.ndarray]:
         """(risk, warned) of every row by ``score`` on its served ``features``, warning (ExtrapolationWarning, at
-        ``stacklevel`` counted from here) when any row is above the threshold; ``context`` is added to the message
-        after the miss (e.g. " from 3 sources")."""
+        ``stacklevel`` counted from here) when any row's risk reaches the warning probability; ``context`` is added
+        to the message after the miss (e.g. " from 3 sources")."""
         risk = score.score(features)
         warned = score.above(risk)
         if warned.any():
             warnings.warn(f"{self.name}: {int(warned.sum())} of {len(warned)} target rows are likely more than "
-                          f"{score.miss:.0%} off{context} (error score above its threshold, calibrated on held-out "
-                          "machines; ScaledForce.risk per row)", ExtrapolationWarning, stacklevel=stacklevel)
+                          f"{score.miss:.0%} off{context} (P ≥ {score.warn_probability:g} by the interval calibrated "
+                          "on held-out machines; ScaledForce.risk per row)", ExtrapolationWarning,
+                          stacklevel=stacklevel)
         return risk, warned
 
-    def _risk_features(self, x: np.ndarray, delta: np.ndarray, sigma: np.ndarray | None = None) -> np.ndarray:
+    def _risk_features(self, x: np.ndarray, delta: np.ndarray) -> np.ndarray:
         """The served features of every row (:meth:`scaling.evaluation.conformal.RowRisk.features`): the novelty of its
-        features g, |ln δ1|, whether the bucket is at rest (:func:`scaling.evaluation.metrics.at_rest` on the
-        target's F31, m_b, x_b, a1 and α1; moving when the model does not take them), its tilt load and an
-        ensemble's σ of ln δ1 (``sigma``; None for a point model)."""
+        features g, |ln δ1| and whether the bucket is at rest (:func:`scaling.evaluation.metrics.at_rest` on the
+        target's F31, m_b, x_b, a1 and α1; moving when the model does not take them)."""
         assert self.risk is not None
         g = np.concatenate([self._features_of(x[s:s + CHUNK], s)[0] for s in range(0, len(x), CHUNK)])
         col = {v: i for i, v in enumerate(self.target_variables)}
         needed = ("F31", "m_b", "x_b", "a1", "alpha1")
         static = (at_rest(pd.DataFrame({v: x[:, col[v]] for v in needed})) if all(v in col for v in needed)
                   else np.zeros(len(x), dtype=bool))
-        return RowRisk.features(self.risk.novelty, g, np.log(delta), static, x[:, col["tilt_load"]], sigma)
+        return RowRisk.features(self.risk.novelty, g, np.log(delta), static)
 
     def _chunk(self, x: np.ndarray, start: int, spread: tuple[float, float, float]) -> tuple[np.ndarray, ...]:
         """:meth:`_finish` of feed-forward rows ``start:start + CHUNK``."""
