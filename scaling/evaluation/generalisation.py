@@ -631,7 +631,7 @@ def cross_fit_served(rows: pd.DataFrame, *, coverage: float = 0.9, miss: float =
     for held in names:
         out, keep = machines == held, machines != held
         for label, kwargs in INTERVAL_VARIANTS.items():
-            coverages = RowInterval.COVERAGES if not kwargs else (coverage,)
+            coverages = tuple(sorted({*RowInterval.COVERAGES, coverage})) if not kwargs else (coverage,)
             interval = RowInterval.fit(x[keep], residual[keep], machines[keep], coverages=coverages, **kwargs)
             cov[label][str(held)] = float(np.mean(np.abs(residual[out]) <= interval.half_width(x[out], coverage)))
             if not kwargs:  # the served bound: its risk
