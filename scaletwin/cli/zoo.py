@@ -126,6 +126,17 @@ def summary_text(s: Mapping[str, Any]) -> str:
             f"{s['interval_coverage_max']:.2f} ({s['interval_machines_85_95']} in 0.85–0.95)")
 
 
+def risk_text(s: Mapping[str, Any]) -> str:
+    """One line on a product-line card's served risk over its drawn held-out machines (or why it has none)."""
+    if s.get("risk_unavailable"):
+        return f"none: {s['risk_unavailable']}"
+    at = s.get("risk_auroc_at") or {}
+    auroc = " / ".join("–" if v is None else f"{v:.2f}" for v in (s.get("risk_auroc"), at.get("0.03"), at.get("0.05")))
+    return (f"P(F21 > 10 % off), read off the interval; AUROC for rows > 10 / 3 / 5 % off {auroc}; warns on "
+            f"{100 * s['risk_warned_share_median']:.1f} % of a machine's rows (median), "
+            f"{100 * s['risk_warned_share_max']:.1f} % at most")
+
+
 def scaling_rows(card: dict[str, Any]) -> list[tuple[str, str]]:
     """The headline fields of a scaling-model card as (field, text) rows (none for other kinds)."""
     if card.get("kind") != "scaling-model":
@@ -144,6 +155,7 @@ def scaling_rows(card: dict[str, Any]) -> list[tuple[str, str]]:
                              for m, v in metrics["held_out_machines"].items())
         return [*common,
                 ("held_out machines", summary_text(s)),
+                ("risk", risk_text(s)),
                 ("per machine", machines),
                 *([(f"from {metrics['multi_source']['sources']} sources",
                     f"scale_force_sources: {summary_text(metrics['multi_source']['summary'])}")]

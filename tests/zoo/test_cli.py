@@ -100,3 +100,4 @@ def test_zoo_list_and_show(capsys: pytest.CaptureFixture[str]):
     assert main(["zoo", "show", "statics-pl", "--verify"]) == 0
     out = capsys.readouterr().out
     assert "verified" in out and "F21/F21_linkage" in out and "direct-Pi" in out and "wa475" in out
+    assert "read off the interval" in out and "AUROC" in out  # the served risk and how it did on held-out machines
