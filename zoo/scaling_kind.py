@@ -38,7 +38,7 @@ import pandas as pd
 from safetensors.numpy import load_file, save_file
 
 from scaling.data.delta_dataset import DeltaDataset
-from scaling.evaluation.conformal import RowRisk
+from scaling.evaluation.conformal import RowInterval, RowRisk
 from scaling.models import DeltaModel, load_model
 from scaling.models.base import CONFIG_FILE, WEIGHTS_FILE
 from scaling.runs.provenance import to_jsonable
@@ -125,7 +125,9 @@ def _load_risk(directory: Path, card: Mapping[str, Any]) -> RowRisk | None:
     name = card["risk"].get("file")
     if name not in card["files"]:
         raise CheckpointError(f"{directory}: the card's risk names {name!r}, which is not a listed file")
-    return RowRisk.from_state(card["risk"], load_file(str(directory / name))["novelty_rows"])
+    learned = card.get("interval", {}).get("learned_scale")
+    return RowRisk.from_state(card["risk"], load_file(str(directory / name))["novelty_rows"],
+                              None if learned is None else RowInterval.from_state(learned))
 
 
 def _check_header(column: str) -> str:

@@ -529,19 +529,22 @@ class RowRisk:
         return out, rows
 
     @classmethod
-    def from_state(cls, params: dict[str, Any], rows: np.ndarray) -> RowRisk:
-        """Rebuild from :meth:`state`.
+    def from_state(cls, params: dict[str, Any], rows: np.ndarray, interval: RowInterval | None) -> RowRisk:
+        """Rebuild from :meth:`state` and the ``interval`` its risk reads (stored apart, once; None for a state
+        without a risk).
 
         Raises:
             ValueError: the state was written for other features or another risk (a checkpoint of an older
-                version).
+                version), or it has a risk and no ``interval`` is given.
         """
         if list(params.get("features", [])) != list(cls.FEATURES):
             raise ValueError(f"the risk was fitted on features {params.get('features')}, this version "
                              f"computes {list(cls.FEATURES)}: rebuild the checkpoint (scaletwin zoo build)")
         score = params["score"]
+        if score is not None and interval is None:
+            raise ValueError("the risk is read off an interval: give the interval it was calibrated with")
         return cls(InputNovelty.from_state(params["novelty"], rows),
-                   None if score is None else IntervalRisk.from_state(score),
+                   None if score is None or interval is None else IntervalRisk.from_state(score, interval),
                    None if score is not None else str(params.get("unavailable") or "no risk was calibrated"))
 
 
@@ -690,19 +693,19 @@ class IntervalRisk:
         return ~(np.asarray(risk) < self.warn_probability)
 
     def state(self) -> dict[str, Any]:
-        """JSON-able parameters, the interval's included (:meth:`from_state` rebuilds the instance)."""
+        """JSON-able parameters, the interval's left out: it is stored once, as the interval it is
+        (:meth:`from_state` rebuilds the instance from both)."""
         return {"kind": "interval", "miss": self.miss, "log_bound": self.log_bound,
-                "warn_probability": self.warn_probability, "interval": self.interval.state()}
+                "warn_probability": self.warn_probability}
 
     @classmethod
-    def from_state(cls, params: dict[str, Any]) -> IntervalRisk:
-        """Rebuild from :meth:`state`.
+    def from_state(cls, params: dict[str, Any], interval: RowInterval) -> IntervalRisk:
+        """Rebuild from :meth:`state` and the ``interval`` it reads.
 
         Raises:
             ValueError: the state is of another kind of risk (a checkpoint of an older version).
         """
-        if params.get("kind") != "interval":
-            raise ValueError("the checkpoint's risk is a logistic error score of an older version: rebuild the "
-                             "checkpoint (scaletwin zoo build)")
-        return cls(RowInterval.from_state(params["interval"]), float(params["miss"]), float(params["log_bound"]),
-                   float(params["warn_probability"]))
+        if params.get("kind") != "interval" or "interval" in params:
+            raise ValueError("the checkpoint's risk was written by an older version: rebuild the checkpoint "
+                             "(scaletwin zoo build)")
+        return cls(interval, float(params["miss"]), float(params["log_bound"]), float(params["warn_probability"]))

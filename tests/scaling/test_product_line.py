@@ -680,17 +680,22 @@ def test_row_risk_and_error_score_survive_their_state() -> None:
     g, log_delta, static, residual, grp = _heavy_tailed_machines(rng, 3)
     risk = RowRisk.fit(train_g, g, log_delta, static, residual, grp)
     params, rows = risk.state()
-    again = RowRisk.from_state(json.loads(json.dumps(params)), rows)
+    assert "interval" not in params["score"]  # the interval is stored once, apart (a card's learned_scale)
+    interval = RowInterval.from_state(json.loads(json.dumps(risk.score.interval.state())))
+    again = RowRisk.from_state(json.loads(json.dumps(params)), rows, interval)
     np.testing.assert_array_equal(again.risk(g, log_delta, static), risk.risk(g, log_delta, static))
     np.testing.assert_array_equal(again.warns(g, log_delta, static), risk.warns(g, log_delta, static))
     with pytest.raises(ValueError, match="rebuild the checkpoint"):  # a card of the five-feature version
-        RowRisk.from_state({**params, "features": [*params["features"], "ln tilt load", "ln σ of ln δ1"]}, rows)
+        RowRisk.from_state({**params, "features": [*params["features"], "ln tilt load", "ln σ of ln δ1"]}, rows,
+                           interval)
     with pytest.raises(ValueError, match="do not fit"):
         InputNovelty.from_state(params["novelty"], rows[:, :3])
     x = RowRisk.features(risk.novelty, g, log_delta, static)
     score = ErrorScore().fit(x, np.abs(residual) * 5, grp)
     with pytest.raises(ValueError, match="rebuild the checkpoint"):  # the logistic risk of the version before
-        RowRisk.from_state({**params, "score": score.state()}, rows)
+        RowRisk.from_state({**params, "score": score.state()}, rows, interval)
+    with pytest.raises(ValueError, match="give the interval"):
+        RowRisk.from_state(params, rows, None)
     np.testing.assert_array_equal(ErrorScore.from_state(json.loads(json.dumps(score.state()))).score(x),
                                   score.score(x))
     with pytest.raises(ValueError, match="inconsistent"):
@@ -698,7 +703,7 @@ def test_row_risk_and_error_score_survive_their_state() -> None:
     bare = RowRisk(risk.novelty, None, "no risk for this test")
     params, rows = bare.state()
     assert params["score"] is None and params["unavailable"] == "no risk for this test"
-    again = RowRisk.from_state(json.loads(json.dumps(params)), rows)
+    again = RowRisk.from_state(json.loads(json.dumps(params)), rows, None)
     assert again.score is None and again.unavailable == bare.unavailable
     with pytest.raises(ValueError, match="no risk was calibrated"):
         again.risk(g, log_delta, static)

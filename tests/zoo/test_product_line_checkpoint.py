@@ -115,7 +115,9 @@ def test_served_model_predicts_on_matched_source_rows(built: tuple[Path, Path, P
     # the served risk: the card's interval risk on the novelty of the model's own features, |ln δ1| and the
     # at-rest rows, each computed here from the judge's side (the pairs, and the target rows they came from)
     card = zoo.card(path)
-    risk = RowRisk.from_state(card["risk"], load_file(str(path / card["risk"]["file"]))["novelty_rows"])
+    assert "interval" not in card["risk"]["score"]  # stored once, as the card's learned_scale
+    risk = RowRisk.from_state(card["risk"], load_file(str(path / card["risk"]["file"]))["novelty_rows"],
+                              RowInterval.from_state(card["interval"]["learned_scale"]))
     static = row_kinds(pairs, tgt) == "static"
     _check_served_risk(out, risk, model.features(pairs), model.predict_log(pairs), static)
     # the served interval: ln δ1 ± q·s(x) on the same features, F21 = F21_linkage·π1(source)/δ1

@@ -172,7 +172,9 @@ class ScalingModel:
         if self.interval_method == "learned-scale":
             if risk is None:
                 raise ValueError("a learned-scale interval needs the checkpoint's risk (its novelty rows)")
-            self._row_interval = RowInterval.from_state(interval["learned_scale"])
+            # the risk reads this interval (zoo.scaling_kind rebuilt it from the same state)
+            self._row_interval = (risk.score.interval if risk.score is not None
+                                  else RowInterval.from_state(interval["learned_scale"]))
         self._quantiles = {float(c): (float(q[0]), float(q[1]))
                            for c, q in interval.get("log_delta_residual_quantiles", {}).items()}
         #: (sources, interval, risk or None where none was calibrated) of :meth:`scale_force_sources`, where the
@@ -182,8 +184,9 @@ class ScalingModel:
             if risk is None:
                 raise ValueError("a multi-source interval needs the checkpoint's risk (its novelty rows)")
             multi = interval["multi_source"]
-            self._multi = (int(multi["sources"]), RowInterval.from_state(multi["learned_scale"]),
-                           None if multi.get("risk") is None else IntervalRisk.from_state(multi["risk"]))
+            learned = RowInterval.from_state(multi["learned_scale"])
+            self._multi = (int(multi["sources"]), learned,
+                           None if multi.get("risk") is None else IntervalRisk.from_state(multi["risk"], learned))
         rng = card["training_range"]
         g_min, g_max = np.asarray(rng["min"], dtype=float), np.asarray(rng["max"], dtype=float)
         n_features = transform.n_features(len(inputs))
