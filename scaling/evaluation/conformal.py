@@ -499,8 +499,7 @@ class RowRisk:
         (:class:`RowInterval`, its default bound) and the risk read off it."""
         novelty = InputNovelty(seed=seed).fit(train_g)
         interval = RowInterval.fit(cls.features(novelty, g, log_delta, static), residual, groups)
-        bound = math.log1p(miss) if log_bound is None else float(log_bound)
-        return cls(novelty, IntervalRisk(interval, miss, bound))
+        return cls(novelty, IntervalRisk(interval, miss, log_bound))
 
     def _score(self) -> IntervalRisk:
         if self.score is None:
@@ -666,23 +665,27 @@ class RowInterval:
 @dataclass
 class IntervalRisk:
     """The served risk, read off the served interval: P(a row's F21 is more than ``miss`` off) =
-    :meth:`RowInterval.exceedance` at the miss line ``log_bound`` (ln δ1 units, ln(1 + ``miss``) where F21 goes
-    with δ1 to the power ±1), and a warning where that is at least ``warn_probability`` (one half: a miss more
+    :meth:`RowInterval.exceedance` at the miss line ``log_bound`` (ln δ1 units; None: ln(1 + ``miss``), where F21
+    goes with δ1 to the power ±1), and a warning where that is at least ``warn_probability`` (one half: a miss more
     likely than not). Calibrated as the interval is, on machines held out of training, and it needs no row of
     them to have missed; a row whose width cannot be computed counts as warned."""
 
     interval: RowInterval
     miss: float = 0.10
-    log_bound: float = math.log1p(0.10)
+    log_bound: float | None = None
     warn_probability: float = 0.5
 
     def __post_init__(self) -> None:
-        if not (self.miss > 0 and self.log_bound > 0 and 0 < self.warn_probability <= 1):
+        if self.log_bound is None and self.miss > 0:
+            self.log_bound = math.log1p(self.miss)
+        if not (self.miss > 0 and self.log_bound is not None and self.log_bound > 0
+                and 0 < self.warn_probability <= 1):
             raise ValueError(f"miss and log_bound must be > 0 and warn_probability in (0, 1], got {self.miss}, "
                              f"{self.log_bound}, {self.warn_probability}")
 
     def score(self, features: np.ndarray) -> np.ndarray:
         """P(error > miss) per row (NaN where a feature is not finite)."""
+        assert self.log_bound is not None  # set in __post_init__
         return self.interval.exceedance(np.atleast_2d(np.asarray(features, dtype=float)), self.log_bound)
 
     def warns(self, features: np.ndarray) -> np.ndarray:

@@ -624,7 +624,6 @@ def cross_fit_served(rows: pd.DataFrame, *, coverage: float = 0.9, miss: float =
     x = rows[[f"served_{k}" for k in range(len(RowRisk.FEATURES))]].to_numpy(float)
     x_logistic = np.column_stack([x, rows[list(LOGISTIC_EXTRA)].to_numpy(float)])
     residual, error = rows["residual"].to_numpy(float), rows["error"].to_numpy(float)
-    bound = math.log1p(miss) if log_bound is None else float(log_bound)
     cov: dict[str, dict[str, float]] = {k: {} for k in INTERVAL_VARIANTS}
     warned: dict[str, dict[str, float]] = {k: {} for k in (SERVED_WARNING, *WARN_VARIANTS)}
     risk, risk_logistic = np.full(len(rows), np.nan), np.full(len(rows), np.nan)
@@ -635,7 +634,7 @@ def cross_fit_served(rows: pd.DataFrame, *, coverage: float = 0.9, miss: float =
             interval = RowInterval.fit(x[keep], residual[keep], machines[keep], coverages=coverages, **kwargs)
             cov[label][str(held)] = float(np.mean(np.abs(residual[out]) <= interval.half_width(x[out], coverage)))
             if not kwargs:  # the served bound: its risk
-                served = IntervalRisk(interval, miss, bound)
+                served = IntervalRisk(interval, miss, log_bound)
                 risk[out] = served.score(x[out])
                 warned[SERVED_WARNING][str(held)] = float(np.mean(served.above(risk[out])))
         for label, (quantile, share) in WARN_VARIANTS.items():

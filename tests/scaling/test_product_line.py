@@ -669,6 +669,7 @@ def test_interval_exceedance_follows_the_stored_bounds() -> None:
         interval.exceedance(x, 0.0)
     with pytest.raises(ValueError, match="warn_probability"):
         IntervalRisk(interval, 0.1, 0.1, warn_probability=0.0)
+    assert IntervalRisk(interval, 0.2).log_bound == pytest.approx(math.log1p(0.2))  # the miss line follows the miss
 
 
 def test_row_risk_and_error_score_survive_their_state() -> None:
