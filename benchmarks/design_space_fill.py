@@ -43,6 +43,7 @@ from scaletwin_envs.design_space import DesignSpace, ProductLineMachine
 from scaletwin_envs.envs.wheel_loader_dig import OBS_INDEX
 from scaletwin_envs.evaluation import evaluate_policies, machine_info, write_csv
 from scaletwin_envs.host import git_revision
+from scaletwin_envs.physics.bucket import heaped_capacity
 from scaletwin_envs.rollout import Episode, run_episode
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -71,7 +72,7 @@ def machine_table(machines: Sequence[ProductLineMachine]) -> pd.DataFrame:
     for m in machines:
         v, s = m.validity, m.spec
         rows.append({"machine": m.name, "length_ratio": m.scale, "mass_t": v.operating_mass_t,
-                     "bucket_m3": s.heaped_capacity, "bucket_m3_per_t": v.bucket_m3_per_t,
+                     "bucket_m3": heaped_capacity(s.geometry), "bucket_m3_per_t": v.bucket_m3_per_t,
                      "breakout_per_weight": v.breakout_per_weight, "raise_time_s": v.raise_time_s,
                      "tilt_ratio_min": v.tilt_ratio_range[0], "tilt_ratio_max": v.tilt_ratio_range[1],
                      "traction": s.traction_coefficient, "pressure_factor": m.distortion["pressure"]})

@@ -140,7 +140,7 @@ def _env_at(scale: str, factor: float):  # -> gymnasium.Env (gymnasium is import
 
     import scaletwin_envs
     from scaletwin_envs.builder import BuildOptions
-    from scaletwin_envs.specs.loader import make_loader
+    from scaletwin_envs.specs import make_loader
 
     return gym.make(scaletwin_envs.ENV_ID, scale=scale,
                     timestep=factor * BuildOptions.for_spec(make_loader(scale)).timestep)
@@ -154,7 +154,7 @@ def convergence(scale: str) -> dict[str, float]:
     from scaletwin_envs.builder import froude_timestep, servo_time_constant, timestep_substeps
     from scaletwin_envs.policies import ScriptedDigPolicy
     from scaletwin_envs.rollout import run_episode
-    from scaletwin_envs.specs.loader import make_loader
+    from scaletwin_envs.specs import make_loader
 
     spec = make_loader(scale)
     n = timestep_substeps(spec)
@@ -176,7 +176,7 @@ def convergence(scale: str) -> dict[str, float]:
 def sweep_machines() -> list[tuple[str, object]]:
     """The sweep's machines: (name, LoaderSpec)."""
     from scaletwin_envs.design_space import DesignSpace
-    from scaletwin_envs.specs.loader import make_loader
+    from scaletwin_envs.specs import make_loader
 
     out: list[tuple[str, object]] = [(p, make_loader(p)) for p in SCALES]
     out += [(f"product line λ {lam:g}", make_loader(lam)) for lam in (0.1, 0.143, 0.2, 0.3, 0.5, 0.75, 1.5, 2.5)]

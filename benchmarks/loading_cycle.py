@@ -35,6 +35,7 @@ import matplotlib.pyplot as plt
 import scaletwin_envs
 from scaletwin_envs.envs.load_truck import ENV_ID
 from scaletwin_envs.host import git_revision, host_line
+from scaletwin_envs.physics.bucket import heaped_capacity
 from scaletwin_envs.policies.loading_cycle import LoadingCyclePolicy
 from scaletwin_envs.productivity import CYCLE_S, FILL_FACTOR, PUBLISHED, REFERENCE_BOOM_M, productivity_band
 
@@ -69,7 +70,7 @@ def run(scale: str, soil: str, seed: int = 0, dig: str = "scripted") -> dict[str
     tf = u.loader.froude_time
     payload, passes, t = info["truck_payload"], info["passes"], info["time"]
     work = info["hydraulic_work"] + info["drive_work"]
-    band = productivity_band(u.loader.heaped_capacity, u.soil.density, u.length)
+    band = productivity_band(heaped_capacity(u.loader.geometry), u.soil.density, u.length)
     rate = payload / 1e3 / (t / 3600.0)
     return {
         "dig": dig,

@@ -24,7 +24,7 @@ import pandas as pd
 
 import zoo
 from scaletwin_envs.design_space import DesignSpace
-from scaletwin_envs.specs.loader import make_loader
+from scaletwin_envs.specs import make_loader
 from scaling.data.product_line import add_design_signals, match_rows, nearest_machines
 from scaling.data.recordings import DatasetSpec, generate_frame
 from scaling.evaluation.generalisation import LeaveMachineOut, judged_rows

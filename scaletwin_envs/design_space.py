@@ -56,6 +56,7 @@ from typing import Any
 
 import numpy as np
 
+from scaletwin_envs.physics.bucket import heaped_capacity
 from scaletwin_envs.physics.kinematics import (
     LinkagePose,
     LinkageUnreachable,
@@ -65,8 +66,9 @@ from scaletwin_envs.physics.kinematics import (
     tilt_ratio,
 )
 from scaletwin_envs.physics.statics import breakout_force
+from scaletwin_envs.specs import make_loader
 from scaletwin_envs.specs.laws import PRODUCT_LINE
-from scaletwin_envs.specs.loader import LoaderSpec, MassProperties, make_loader
+from scaletwin_envs.specs.loader import LoaderSpec, MassProperties
 
 #: Pins a sample may move (the boom pivot and O define the boom and stay).
 MOVABLE_PINS = ("bell_crank_pivot", "bell_crank_top", "bell_crank_bottom", "pin_21", "lift_frame_pin",
@@ -162,7 +164,7 @@ def check_design(spec: LoaderSpec) -> Validity:
     """Validity of a loader against the published bands (module docstring)."""
     reasons: list[str] = []
     mass_t = spec.operating_mass / 1000.0
-    m3_per_t = spec.heaped_capacity / mass_t
+    m3_per_t = heaped_capacity(spec.geometry) / mass_t
     raise_s = spec.lift.stroke / spec.lift.extend_speed
     ok_assembly = assembles_over_workspace(spec)
     if not ok_assembly:

@@ -119,7 +119,7 @@ def build_zoo(cfg: BuildConfig | None = None) -> dict[str, Path]:
     pipeline = ScalingPipeline(PipelineConfig(models=zoo_specs(chosen, cfg.ffnn), seed=cfg.seed,
                                               coverage=cfg.coverage))
     prep = pipeline.prepare(train)
-    result = pipeline.run(bundle, None, progress=cfg.progress, rerun=False, prepared=prep)
+    result = pipeline.run(bundle, progress=cfg.progress, prepared=prep)
     held_in = in_domain_rows(held, pipeline.config)
     check = check_table(held_in)
     out: dict[str, Path] = {}

@@ -18,6 +18,7 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
+from scaletwin_envs.recording.atomic import atomic_path
 from zoo.errors import CheckpointError
 
 CARD_NAME = "card.json"
@@ -95,9 +96,8 @@ def write_card(directory: str | Path, card: dict[str, Any]) -> Path:
     """Write ``card.json`` (after the structural checks), sorted and indented."""
     check_card(card)
     path = Path(directory) / CARD_NAME
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(card, indent=2, sort_keys=True) + "\n", encoding="utf-8")
-    tmp.replace(path)
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(card, indent=2, sort_keys=True) + "\n", encoding="utf-8")
     return path
 
 

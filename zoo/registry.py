@@ -11,6 +11,7 @@ import re
 from pathlib import Path
 from typing import Any
 
+from scaletwin_envs.recording.atomic import atomic_path
 from zoo.checkpoint import CARD_NAME, FORMAT_VERSION, read_card, sha256_file
 from zoo.errors import CheckpointError
 
@@ -72,7 +73,6 @@ def register(name: str, directory: str | Path, summary: str | None = None,
     entries = read_registry(registry)
     entries[name] = entry
     text = json.dumps({"format_version": FORMAT_VERSION, "checkpoints": dict(sorted(entries.items()))}, indent=2)
-    tmp = Path(registry).with_suffix(".json.tmp")
-    tmp.write_text(text + "\n", encoding="utf-8")
-    tmp.replace(registry)
+    with atomic_path(registry) as tmp:
+        tmp.write_text(text + "\n", encoding="utf-8")
     return entry

@@ -34,8 +34,6 @@ import textwrap
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from discrepancy.effects import CATALOGUE, UNEXPLAINED
 from discrepancy.pipeline import PILE_ALTERNATIVE, Diagnosis, ReportedEffect
 from discrepancy.report.schema import validate
@@ -363,14 +361,8 @@ def write_markdown(d: Diagnosis, path: str | Path, with_plots: bool = True) -> P
     path.parent.mkdir(parents=True, exist_ok=True)
     plots: list[str] = []
     if with_plots:
-        from discrepancy.report.plots import save_plots
+        from discrepancy.report.plots import save_plots  # matplotlib, loaded only when plotting
 
         plots = [p.name for p in save_plots(d, path.with_suffix(""))]
     path.write_text(markdown(d, plots))
     return path
-
-
-def top_signals(d: Diagnosis, n: int = 6) -> list[str]:
-    """The signals with the largest residual before the correction."""
-    order = sorted(d.comparison.before, key=lambda s: -d.comparison.before[s])
-    return [s for s in order if np.isfinite(d.comparison.before[s])][:n]

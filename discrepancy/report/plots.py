@@ -15,9 +15,13 @@ from discrepancy.pipeline import Diagnosis
 from scaletwin_envs.signal_units import SIGNAL_UNITS
 
 
-def _traces(d: Diagnosis, stem: Path) -> Path:
-    from discrepancy.report.document import top_signals
+def top_signals(d: Diagnosis, n: int = 6) -> list[str]:
+    """The signals with the largest residual before the correction."""
+    order = sorted(d.comparison.before, key=lambda s: -d.comparison.before[s])
+    return [s for s in order if np.isfinite(d.comparison.before[s])][:n]
 
+
+def _traces(d: Diagnosis, stem: Path) -> Path:
     names = top_signals(d, 6)
     ep = d.held_out[0] if d.held_out else d.train
     runs = d.traces[ep.name]

@@ -107,16 +107,15 @@ def read_results(path: Path) -> list[dict[str, Any]]:
 def write_csv(path: Path, results: list[dict[str, Any]], header: dict[str, Any]) -> None:
     """The per-case CSV: ``# key: value`` header lines, then one row per case."""
     from discrepancy.bench.scoring import CSV_COLUMNS, csv_row
+    from scaletwin_envs.recording.atomic import atomic_path
 
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    with tmp.open("w", newline="") as f:
+    with atomic_path(path) as tmp, tmp.open("w", newline="") as f:
         for k, v in header.items():
             f.write(f"# {k}: {v}\n")
         w = csv.DictWriter(f, fieldnames=list(CSV_COLUMNS))
         w.writeheader()
         for r in results:
             w.writerow(csv_row(r))
-    tmp.replace(path)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -1,17 +1,21 @@
-"""Argument helpers shared by subcommands."""
+"""Argument and output helpers shared by subcommands."""
 
 from __future__ import annotations
 
 import argparse
-import json
 from collections.abc import Sequence
-from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from scaletwin.cli import CommandError
 
+if TYPE_CHECKING:  # annotations only: the command line's help must not import numpy, rich or scaling
+    import numpy as np
+    from rich.table import Table
+
+    from scaling.evaluation.miniature import MiniValidation
+
 EXECUTORS = ("local", "serial", "ray")
-#: Scaling laws of ``--law`` (:func:`scaletwin_envs.specs.loader.make_loader`); the first is the default, the only
+#: Scaling laws of ``--law`` (:func:`scaletwin_envs.specs.make_loader`); the first is the default, the only
 #: one a preset machine takes.
 LAWS = ("product_line", "froude")
 
@@ -55,14 +59,6 @@ def add_machine_args(p: argparse.ArgumentParser) -> None:
     add_law_arg(p)
     p.add_argument("--soil", default="gravel", help="gravel, sand, sandy_loam or clay_loam (default gravel)")
     p.add_argument("--seed", type=int, default=0, help="reset seed (default 0)")
-
-
-def write_json(path: str | Path, payload: Any) -> None:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(payload, indent=2, sort_keys=True, default=str))
-    tmp.replace(path)
 
 
 def add_executor_args(p: argparse.ArgumentParser) -> None:
@@ -122,3 +118,24 @@ def executor_from_args(args: argparse.Namespace, workers: str | int | None = Non
         return RayExecutor(args.ray_address, num_cpus=cpus)
     except ImportError as exc:
         raise CommandError(f"--executor ray: {exc}") from exc
+
+
+def mini_table(mini: MiniValidation, title: str, env_f21: np.ndarray | None = None) -> Table:
+    """A rich table: load, analytical F21, each model's signed error; the last row holds mean absolute errors."""
+    from rich.table import Table
+
+    table = Table(title=title)
+    table.add_column("load (kg)", justify="right")
+    table.add_column("F21 (N)", justify="right")
+    if env_f21 is not None:
+        table.add_column("MuJoCo F21 (N)", justify="right")
+    for name in mini.predicted:
+        table.add_column(f"{name} (%)", justify="right")
+    for i, load in enumerate(mini.loads_kg):
+        env = [f"{env_f21[i]:.3f}"] if env_f21 is not None else []
+        table.add_row(f"{load:g}", f"{mini.actual[i]:.3f}", *env,
+                      *(f"{mini.pct_error(n)[i]:+.2f}" for n in mini.predicted))
+    env_blank = [""] if env_f21 is not None else []
+    table.add_row("mean |error|", "", *env_blank, *(f"{mini.mean_abs(n):.2f}" for n in mini.predicted),
+                  style="bold")
+    return table

@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from scaletwin.cli.common import add_executor_args, executor_from_args
+from scaletwin.cli.common import add_executor_args, executor_from_args, mini_table
 
 if TYPE_CHECKING:
     from rich.console import Console
@@ -70,6 +70,7 @@ def fit_demo(out: Path, console: Console, workers: Any = "serial", seed: int = 0
     """
     from scaling.data.recordings import DataBundle, load_or_generate
     from scaling.runs.pipeline import PipelineConfig, ScalingPipeline
+    from scaling.runs.run_io import save_run
 
     demo = _setting("DEMO")
     data_dir = data_dir or out / "data"
@@ -81,7 +82,9 @@ def fit_demo(out: Path, console: Console, workers: Any = "serial", seed: int = 0
     console.print("[bold]2/4[/bold] Choosing the Eq. (10) groups (paper's RMS-Pearson filter) and fitting the FFNN δ1 "
                   "model and the direct-Pi baseline (δ1 ≡ 1)")
     config = PipelineConfig(models=_setting("DEMO_MODELS"), seed=seed)
-    return ScalingPipeline(config).run(DataBundle(train), out, progress=True, rerun=rerun)
+    result = ScalingPipeline(config).run(DataBundle(train), progress=True)
+    save_run(result, out, rerun=rerun)
+    return result
 
 
 def product_line_on_mini(data_dir: Path, rows: Any) -> dict[str, Any]:
@@ -111,7 +114,6 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np  # fail at once
     from rich.console import Console
 
-    from scaletwin.cli.validate_mini import mini_table
     from scaling.evaluation.miniature import static_rows
     from scaling.runs.plots import plot_mini_validation, plot_predicted_vs_actual
     from scaling.runs.provenance import write_json

@@ -72,6 +72,7 @@ def run(args: argparse.Namespace) -> int:
 
     from scaling.data.recordings import DataBundle
     from scaling.runs.pipeline import PipelineConfig, ScalingPipeline, model_specs
+    from scaling.runs.run_io import save_run
 
     console = Console()
     out: Path = args.out
@@ -91,7 +92,8 @@ def run(args: argparse.Namespace) -> int:
     console.print(f"training: {len(train)} rows of {machines}" + ("" if held is None else
                   f"; never trained on: {len(held)} rows of " + ", ".join(sorted(held["machine"].unique()))))
     config = PipelineConfig(models=specs, reference=args.reference, seed=args.seed)
-    result = ScalingPipeline(config).run(DataBundle(train, held), out, progress=True, rerun=not args.no_rerun)
+    result = ScalingPipeline(config).run(DataBundle(train, held), progress=True)
+    save_run(result, out, rerun=not args.no_rerun)
     table = Table(title=f"held-out episodes (reference ER12 row {result.reference.name})")
     for col in ("model", "R² δ1 dig", "R² δ1 all", "R² ln δ1", "F21 MAPE %", "mini |err| %", "fit s"):
         table.add_column(col, justify="right")

@@ -31,7 +31,7 @@ def run(args: argparse.Namespace) -> int:
     executor = executor_from_args(args, args.workers)  # before the heavy imports: bad options fail at once
     from rich.console import Console
 
-    from scaling.runs.report import headline_rows
+    from scaling.runs.report import headline_rows, write_report
     from scaling.runs.reproduce import QUICK, ReproduceConfig, reproduce
 
     console = Console()
@@ -39,6 +39,7 @@ def run(args: argparse.Namespace) -> int:
     console.print(f"[bold]Reproducing[/bold] into {args.out}/ ({'quick smoke run' if args.quick else 'full'}): "
                   "data -> grid search -> fits -> figures -> miniature -> report")
     result = reproduce(args.out, config, executor, progress=True, rerun=not args.no_rerun)
+    write_report(result, args.out / "report.md")
     for quantity, paper, ours, target, met in headline_rows(result):
         console.print(f"  {quantity}: ours {ours} (paper {paper}; target {target}: {met})")
     console.print(f"report: {args.out / 'report.md'}; timings (s): "

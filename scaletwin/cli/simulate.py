@@ -12,7 +12,7 @@ import contextlib
 from collections.abc import Callable, Iterator
 from typing import TYPE_CHECKING, Any
 
-from scaletwin.cli.common import add_machine_args, check_law, write_json
+from scaletwin.cli.common import add_machine_args, check_law
 
 if TYPE_CHECKING:
     import gymnasium as gym
@@ -114,6 +114,8 @@ def run(args: argparse.Namespace) -> int:
                                unwrapped.max_episode_time * unwrapped.loader.froude_time), markup=False,
                   highlight=False)
     if args.json:
+        from scaling.runs.provenance import write_json
+
         write_json(args.json, {"loader": loader.to_dict(), "soil": args.soil, "seed": args.seed, "kpis": kpis,
                                "peaks": peaks})
     for kind, path in (("recording", args.parquet), ("rerun log", args.rrd)):

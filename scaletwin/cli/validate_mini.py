@@ -12,15 +12,10 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from scaletwin.cli import CommandError
-
-if TYPE_CHECKING:
-    import numpy as np
-    from rich.table import Table
-
-    from scaling.evaluation.miniature import MiniValidation
+from scaletwin.cli.common import mini_table
+from scaletwin.cli.demo import fit_demo
 
 DEFAULT_RUN = Path("scaletwin-fit")
 
@@ -39,27 +34,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def mini_table(mini: MiniValidation, title: str, env_f21: np.ndarray | None = None) -> Table:
-    """A rich table: load, analytical F21, each model's signed error; the last row holds mean absolute errors."""
-    from rich.table import Table
-
-    table = Table(title=title)
-    table.add_column("load (kg)", justify="right")
-    table.add_column("F21 (N)", justify="right")
-    if env_f21 is not None:
-        table.add_column("MuJoCo F21 (N)", justify="right")
-    for name in mini.predicted:
-        table.add_column(f"{name} (%)", justify="right")
-    for i, load in enumerate(mini.loads_kg):
-        env = [f"{env_f21[i]:.3f}"] if env_f21 is not None else []
-        table.add_row(f"{load:g}", f"{mini.actual[i]:.3f}", *env,
-                      *(f"{mini.pct_error(n)[i]:+.2f}" for n in mini.predicted))
-    env_blank = [""] if env_f21 is not None else []
-    table.add_row("mean |error|", "", *env_blank, *(f"{mini.mean_abs(n):.2f}" for n in mini.predicted),
-                  style="bold")
-    return table
-
-
 def run(args: argparse.Namespace) -> int:
     import numpy as np
     from rich.console import Console
@@ -73,8 +47,6 @@ def run(args: argparse.Namespace) -> int:
     if args.run_dir is not None and not Path(args.run_dir).exists():
         raise CommandError(f"no run directory {args.run_dir}; create one with `scaletwin fit --out {args.run_dir}`")
     if args.run_dir is None and not (run_dir / "reference.json").exists():
-        from scaletwin.cli.demo import fit_demo
-
         console.print(f"[bold]No fitted models given: fitting the demo models into ./{run_dir} first[/bold]")
         fit_demo(run_dir, console)
     from scaling.runs.run_io import load_run

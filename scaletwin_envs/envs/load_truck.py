@@ -91,8 +91,9 @@ from scaletwin_envs.envs.wheel_loader_dig import OBS_INDEX as DIG_INDEX
 from scaletwin_envs.envs.wheel_loader_dig import OBS_LIMIT, WheelLoaderDigEnv
 from scaletwin_envs.envs.wheel_loader_dig import OBS_NAMES as DIG_OBS_NAMES
 from scaletwin_envs.physics.bucket import capacity_fraction
+from scaletwin_envs.specs import make_loader
 from scaletwin_envs.specs.laws import PRODUCT_LINE, ScalingLaw
-from scaletwin_envs.specs.loader import GRAVITY, LoaderSpec, make_loader
+from scaletwin_envs.specs.loader import GRAVITY, LoaderSpec
 from scaletwin_envs.specs.soil import SoilSpec, make_soil
 
 ENV_ID = "WheelLoaderLoadTruck-v1"

@@ -41,8 +41,9 @@ from gymnasium.envs.mujoco.mujoco_env import MujocoEnv
 from scaletwin_envs.builder import BuildOptions, build_model, froude_timestep, supply_dofs
 from scaletwin_envs.envs.hydraulics import CylinderValve
 from scaletwin_envs.signals import SignalReader
+from scaletwin_envs.specs import make_loader
 from scaletwin_envs.specs.laws import PRODUCT_LINE, ScalingLaw, make_law
-from scaletwin_envs.specs.loader import LoaderSpec, make_loader
+from scaletwin_envs.specs.loader import LoaderSpec
 
 # Control step and soil refresh period in Froude steps (1 ms × √λ, builder.froude_timestep), whatever the physics
 # timestep: frame_skip and external_force_substeps default to these periods counted in physics steps (× the

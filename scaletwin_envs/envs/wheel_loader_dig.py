@@ -113,13 +113,14 @@ from gymnasium import spaces
 from scaletwin_envs.builder import BuildOptions, froude_timestep
 from scaletwin_envs.envs.loader_base import DEFAULT_FRAME_SKIP, LoaderEnv
 from scaletwin_envs.envs.phases import DigPhase, classify
-from scaletwin_envs.physics.bucket import centroid_at, centroid_ends
+from scaletwin_envs.physics.bucket import centroid_at, centroid_ends, heaped_capacity
 from scaletwin_envs.physics.dig import DigForces, DigModel
 from scaletwin_envs.physics.kinematics import LinkageUnreachable, solve_pose
 from scaletwin_envs.physics.pile import Pile
 from scaletwin_envs.runtime import draw_pile, qpos_for_pose, set_payload
+from scaletwin_envs.specs import make_loader
 from scaletwin_envs.specs.laws import PRODUCT_LINE, ScalingLaw
-from scaletwin_envs.specs.loader import GRAVITY, LoaderSpec, make_loader
+from scaletwin_envs.specs.loader import GRAVITY, LoaderSpec
 from scaletwin_envs.specs.soil import SoilSpec, make_soil
 
 OBS_NAMES = (
@@ -296,7 +297,7 @@ class WheelLoaderDigEnv(LoaderEnv):
         height = L * opt.get("pile_height", self.pile_height * (1.0 + rng.uniform(-0.08, 0.08) * noise))
         repose = opt.get("repose_angle", self.soil.repose_angle + math.radians(rng.uniform(-2.0, 2.0) * noise))
         self.pile = Pile(toe, height, repose, length=3.0 * L, width=g.bucket_width)
-        self.dig = DigModel(self.soil, self.pile, g.bucket_width, self.loader.heaped_capacity, L)
+        self.dig = DigModel(self.soil, self.pile, g.bucket_width, heaped_capacity(g), L)
         for v in self.valves.values():
             v.reset()
         self._soil_force = DigForces()

@@ -28,8 +28,8 @@ import numpy as np
 
 import scaletwin_envs
 from scaletwin_envs.envs.wheel_loader_dig import horizon_steps
+from scaletwin_envs.specs import make_loader
 from scaletwin_envs.specs.laws import LAWS, PRODUCT_LINE
-from scaletwin_envs.specs.loader import make_loader
 from scaletwin_envs.specs.presets import PRESETS
 from scaletwin_envs.specs.soil import SOILS
 

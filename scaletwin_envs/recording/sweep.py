@@ -54,7 +54,8 @@ from scaletwin_envs.recording.atomic import (
 from scaletwin_envs.recording.recorder import record_episode
 from scaletwin_envs.recording.recording import Recording, read_recording, recording_from_arrow
 from scaletwin_envs.recording.schema import SCHEMA_VERSION
-from scaletwin_envs.specs.loader import LoaderSpec, make_loader
+from scaletwin_envs.specs import make_loader
+from scaletwin_envs.specs.loader import LoaderSpec
 
 MANIFEST = "manifest.json"
 SERIAL_MAX = 8  # sweeps with at most this many episodes to run go serially when no executor is given

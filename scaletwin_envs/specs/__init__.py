@@ -6,9 +6,8 @@ from scaletwin_envs.specs.loader import (
     LinkageGeometry,
     LoaderSpec,
     MassProperties,
-    make_loader,
-    preset_names,
 )
+from scaletwin_envs.specs.machines import make_loader, preset_names
 from scaletwin_envs.specs.soil import SOILS, SoilSpec, make_soil
 
 __all__ = [

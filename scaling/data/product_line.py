@@ -37,8 +37,10 @@ import pandas as pd
 from scipy.spatial import cKDTree
 
 from scaletwin_envs.design_space import DesignSpace, ProductLineMachine
+from scaletwin_envs.physics.bucket import heaped_capacity
 from scaletwin_envs.physics.kinematics import LinkageUnreachable, bucket_angle_for_tilt_length, tilt_ratio
-from scaletwin_envs.specs.loader import LoaderSpec, make_loader
+from scaletwin_envs.specs import make_loader
+from scaletwin_envs.specs.loader import LoaderSpec
 from scaling.data.delta_dataset import DeltaDataset, concat_datasets
 from scaling.data.recordings import SOILS, DatasetSpec
 from scaling.dimensions.groups import PiGroup
@@ -272,7 +274,7 @@ def design_descriptor(spec: LoaderSpec) -> np.ndarray:
     pins = [c for p in MOVABLE_PINS for c in ((getattr(g, p)[0] - px) / L, (getattr(g, p)[1] - pz) / L)]
     froude = np.sqrt(GRAVITY * L)
     return np.array([
-        *pins, np.log(spec.heaped_capacity / L**3), np.log(spec.operating_mass / L**3),
+        *pins, np.log(heaped_capacity(spec.geometry) / L**3), np.log(spec.operating_mass / L**3),
         np.log(spec.lift.max_extend_force / spec.weight), np.log(spec.tilt.max_extend_force / spec.weight),
         np.log(spec.lift.extend_speed / froude), np.log(spec.tilt.extend_speed / froude),
         spec.traction_coefficient, np.log(spec.travel_speed / froude),

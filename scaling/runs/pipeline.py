@@ -7,14 +7,16 @@
 Steps of :meth:`ScalingPipeline.run`:
 
 1. keep the rows inside the scaling domain (:func:`scaling.evaluation.metrics.in_domain`);
-2. choose the Eq. (10) and Eq. (23) group sets (:func:`scaling.dimensions.group_choice.choose_groups`: candidates from
-the
-   Buckingham-Pi enumeration, π1 = F21/F31, finite at rest, ranked by the paper's RMS-Pearson filter);
+2. choose the Eq. (10) and Eq. (23) group sets (:func:`scaling.dimensions.group_choice.choose_groups`: candidates
+   from the Buckingham-Pi enumeration, π1 = F21/F31, finite at rest, ranked by the paper's RMS-Pearson filter);
 3. pick the reference row (:func:`scaling.evaluation.metrics.pick_reference`) and build the δ1 pairs;
 4. hold out whole episodes (:func:`scaling.evaluation.metrics.split_episodes`, the same for every model);
-5. fit every :class:`ModelSpec`, log each fit to rerun, score on the held-out episodes;
+5. fit every :class:`ModelSpec` and score it on the held-out episodes;
 6. score machines never trained on (``held_out`` data) and the miniature validation
-(:mod:`scaling.evaluation.miniature`); 7. write the run directory (:mod:`scaling.runs.run_io`).
+   (:mod:`scaling.evaluation.miniature`).
+
+It returns a :class:`PipelineResult`; :func:`scaling.runs.run_io.save_run` writes it as a run directory (with a
+rerun log of each fit), the next stage, which reads the result and never the pipeline.
 """
 
 from __future__ import annotations
@@ -22,7 +24,6 @@ from __future__ import annotations
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field, replace
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -132,7 +133,6 @@ class PipelineResult:
     test_kinds: dict[str, np.ndarray]
     domain: dict[str, int]
     data_hashes: dict[str, str]
-    out_dir: Path | None = None
 
     def headline(self) -> dict[str, Any]:
         """The numbers the issue's targets are about."""
@@ -171,14 +171,13 @@ class ScalingPipeline:
         sets = {g: self._split(frame, c, ref_index, test_keys) for g, c in choices.items()}
         return Prepared(frame, domain, choices, frame.loc[ref_index], sets)
 
-    def run(self, data: DataBundle, out_dir: str | Path | None = None, *, progress: bool = True,
-            rerun: bool = True, prepared: Prepared | None = None) -> PipelineResult:
-        """Fit and evaluate every model on ``data.train``; score ``data.held_out`` machines if given.
+    def run(self, data: DataBundle, *, progress: bool = True, prepared: Prepared | None = None) -> PipelineResult:
+        """Fit and evaluate every model on ``data.train``; score ``data.held_out`` machines if given (writes
+        nothing: :func:`scaling.runs.run_io.save_run` does).
 
         Args:
             data: training recordings (and optionally machines never trained on).
-            out_dir: run directory to write (models, metrics, provenance); None writes nothing.
-            progress: progress bars.  rerun: log each fit to ``models/<name>/fit.rrd`` (needs ``out_dir``).
+            progress: progress bars.
             prepared: the output of :meth:`prepare` on ``data.train`` (computed if None).
         """
         cfg = self.config
@@ -202,13 +201,8 @@ class ScalingPipeline:
         mini = validate_mini(models, prep.reference, coverage=cfg.coverage)
         tests = {g: s[1] for g, s in prep.sets.items()}
         kinds = {g: ev.kinds_of(t, prep.frame) for g, t in tests.items()}
-        result = PipelineResult(cfg, prep.choices, prep.reference, models, metrics, held_out, mini, tests, kinds,
-                                prep.domain, dict(data.hashes))
-        if out_dir is not None:
-            from scaling.runs.run_io import save_run
-
-            result.out_dir = save_run(result, out_dir, rerun=rerun)
-        return result
+        return PipelineResult(cfg, prep.choices, prep.reference, models, metrics, held_out, mini, tests, kinds,
+                              prep.domain, dict(data.hashes))
 
     # ------------------------------------------------------------------------------------------------ helpers
 

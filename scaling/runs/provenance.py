@@ -17,6 +17,8 @@ from typing import Any
 
 import numpy as np
 
+from scaletwin_envs.recording.atomic import atomic_path
+
 PACKAGE_ROOT = Path(__file__).resolve().parent.parent
 
 
@@ -83,12 +85,10 @@ def to_jsonable(value: Any) -> Any:
 
 def write_json(path: str | Path, payload: Any) -> Path:
     """Write ``payload`` (made JSON-safe by :func:`to_jsonable`) atomically, pretty-printed; returns the path."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(to_jsonable(payload), indent=2, sort_keys=True, allow_nan=False) + "\n")
-    tmp.replace(path)
-    return path
+    text = json.dumps(to_jsonable(payload), indent=2, sort_keys=True, allow_nan=False) + "\n"
+    with atomic_path(path) as tmp:
+        tmp.write_text(text)
+    return Path(path)
 
 
 def read_json(path: str | Path) -> Any:

@@ -7,15 +7,13 @@ the number it reports next to our PNG and our number.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from scaling.runs.provenance import code_version, machine
-
-if TYPE_CHECKING:
-    from scaling.runs.reproduce import ReproduceResult
+from scaling.runs.reproduce import ReproduceResult
 
 PAPER = {"ffnn_r2": 0.99, "gru_eq10_r2": 0.81, "gru_eq23_r2": 0.85, "mini_ffnn": 4.29, "mini_direct": 42.04,
          "reduction": 0.90}

@@ -4,10 +4,12 @@
 
     data/train, data/held_out   Parquet recordings (resumable; reruns reuse them)
     grid/results.csv            the FFNN grid search (paper Figs. 8–10), resumable
-    run/                        the run directory of :mod:`scaling.runs.run_io` (models, metrics, provenance, rerun
-    logs) figures/*.png               our versions of the paper's figures (also in figures/figures.rrd for rerun)
+    run/                        the run directory of :mod:`scaling.runs.run_io` (models, metrics, provenance,
+                                rerun logs)
+    figures/*.png               our versions of the paper's figures (also in figures/figures.rrd for rerun)
     reference_sensitivity.csv   miniature errors of FFNN and direct-Pi for several reference rows
-    report.md                   our figures and numbers beside the paper's (:mod:`scaling.runs.report`)
+    report.md                   our figures and numbers beside the paper's (written from the result by
+                                :func:`scaling.runs.report.write_report`)
     provenance.json, timings.json
 
 The grid search runs on the pipeline's FFNN δ1 training pairs only: it fits on part of the training episodes and
@@ -32,6 +34,7 @@ from scaling.models.grid import DEFAULT_GRID, GridSearch, best_config
 from scaling.runs import plots
 from scaling.runs.pipeline import FFNN_CONFIG, ModelSpec, PipelineConfig, PipelineResult, ScalingPipeline, model_specs
 from scaling.runs.provenance import provenance, write_json
+from scaling.runs.run_io import save_run
 
 
 @dataclass(frozen=True)
@@ -79,9 +82,8 @@ class ReproduceResult:
 def reproduce(out_dir: str | Path, config: ReproduceConfig | None = None,
               executor: str | int | Executor | None = None, progress: bool = True,
               rerun: bool = True) -> ReproduceResult:
-    """Run the whole reproduction into ``out_dir`` (see module docstring) and write ``report.md``."""
-    from scaling.runs.report import write_report
-
+    """Run the whole reproduction into ``out_dir`` (see module docstring; ``report.md`` is the next stage's:
+    :func:`scaling.runs.report.write_report` of the result)."""
     cfg = config or ReproduceConfig()
     out = Path(out_dir)
     seconds: dict[str, float] = {}
@@ -106,7 +108,8 @@ def reproduce(out_dir: str | Path, config: ReproduceConfig | None = None,
     models = tuple(replace(s, config={**s.config, **{k: best[k] for k in cfg.grid}}) if s.name == "ffnn" else s
                    for s in cfg.pipeline.models)
     pipeline = ScalingPipeline(replace(cfg.pipeline, models=models))
-    run = pipeline.run(bundle, out / "run", progress=progress, rerun=rerun, prepared=prepared)
+    run = pipeline.run(bundle, progress=progress, prepared=prepared)
+    save_run(run, out / "run", rerun=rerun)
     seconds["fit"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -123,7 +126,6 @@ def reproduce(out_dir: str | Path, config: ReproduceConfig | None = None,
     write_json(out / "timings.json", seconds)
     write_json(out / "provenance.json", provenance("reproduction", asdict(cfg), cfg.pipeline.seed, bundle.hashes,
                                                    timings=seconds, best_ffnn=best))
-    write_report(result, out / "report.md")
     return result
 
 

@@ -15,17 +15,15 @@ Layout (JSON + safetensors + CSV + rerun files; no pickle)::
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from scaling.dimensions.pi_theorem import write_manifest
 from scaling.models import DeltaModel, load_model
+from scaling.runs.pipeline import PipelineResult
 from scaling.runs.provenance import provenance, read_json, write_json
-
-if TYPE_CHECKING:
-    from scaling.runs.pipeline import PipelineResult
 
 METRICS, PROVENANCE, REFERENCE, MINI = "metrics.json", "provenance.json", "reference.json", "mini.json"
 

@@ -24,7 +24,8 @@ from scaletwin_envs.policies import ScriptedDigPolicy
 from scaletwin_envs.recording.recorder import record_episode
 from scaletwin_envs.recording.sweep import make_policy
 from scaletwin_envs.rollout import run_episode
-from scaletwin_envs.specs.loader import LoaderSpec, make_loader
+from scaletwin_envs.specs import make_loader
+from scaletwin_envs.specs.loader import LoaderSpec
 
 PRESETS = ("er12", "mini", "wa475")
 

@@ -28,12 +28,14 @@ from scaletwin_envs.design_space import (
     check_design,
     reference_workspace,
 )
+from scaletwin_envs.physics.bucket import heaped_capacity
 from scaletwin_envs.physics.kinematics import boom_angle_for_lift_length, solve_pose, tilt_ratio
 from scaletwin_envs.physics.statics import static_at
 from scaletwin_envs.policies import ScriptedDigPolicy
 from scaletwin_envs.recording.sweep import EpisodeTask
 from scaletwin_envs.rollout import run_episode
-from scaletwin_envs.specs.loader import LoaderSpec, make_loader
+from scaletwin_envs.specs import make_loader
+from scaletwin_envs.specs.loader import LoaderSpec
 
 #: Every factor key of a distortion vector and the DesignSpace range that bounds it.
 FACTOR_RANGES = {"lift_bore": "bore", "tilt_bore": "bore", "pressure": "pressure", "lift_flow": "flow",
@@ -99,7 +101,8 @@ def test_every_sample_is_valid_and_inside_its_ranges(line: list[ProductLineMachi
         again = check_design(m.spec)
         assert again.ok, again.reasons
         assert again == m.validity
-        assert BUCKET_M3_PER_T[0] <= m.spec.heaped_capacity / (m.spec.operating_mass / 1000) <= BUCKET_M3_PER_T[1]
+        m3_per_t = heaped_capacity(m.spec.geometry) / (m.spec.operating_mass / 1000)
+        assert BUCKET_M3_PER_T[0] <= m3_per_t <= BUCKET_M3_PER_T[1]
         assert BREAKOUT_PER_WEIGHT[0] <= again.breakout_per_weight <= BREAKOUT_PER_WEIGHT[1]
         raise_s = m.spec.lift.stroke / m.spec.lift.extend_speed
         if RAISE_TIME_MASS_T[0] <= m.spec.operating_mass / 1000 <= RAISE_TIME_MASS_T[1]:
@@ -170,10 +173,10 @@ def test_cylinder_and_mass_distortions_act_as_documented() -> None:
     assert heavy_boom.masses.boom == pytest.approx(1.25 * base.masses.boom, rel=1e-12)
     assert heavy_boom.masses.bucket == base.masses.bucket
     bucket = build_design({"bucket_size": 1.1})
-    assert bucket.heaped_capacity == pytest.approx(1.1**3 * base.heaped_capacity, rel=1e-9)
+    assert heaped_capacity(bucket.geometry) == pytest.approx(1.1**3 * heaped_capacity(base.geometry), rel=1e-9)
     assert bucket.rated_load == pytest.approx(1.1**3 * base.rated_load, rel=1e-12)
     deeper = build_design({"bucket_depth": 1.1})
-    assert deeper.heaped_capacity > base.heaped_capacity
+    assert heaped_capacity(deeper.geometry) > heaped_capacity(base.geometry)
     assert build_design({"traction": 0.8}).traction_coefficient == pytest.approx(0.8 * base.traction_coefficient)
     assert build_design({"travel_speed": 1.2}).travel_speed == pytest.approx(1.2 * base.travel_speed)
 

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from scaletwin_envs.envs.phases import DigPhase
+from scaletwin_envs.physics.bucket import heaped_capacity
 from scaletwin_envs.physics.dig import DigModel
 from scaletwin_envs.physics.earthmoving import n_factors
 from scaletwin_envs.physics.pile import Pile
@@ -67,7 +68,7 @@ def test_fee_reduces_to_rankine_passive_pressure() -> None:
 def test_no_resistance_outside_the_pile_or_at_rest() -> None:
     spec = make_loader("er12")
     pile = Pile(toe_x=5.0, height=1.0, repose=math.radians(35), length=5.0, width=1.5)
-    dig = DigModel(make_soil("gravel"), pile, 1.5, spec.heaped_capacity, spec.characteristic_length)
+    dig = DigModel(make_soil("gravel"), pile, 1.5, heaped_capacity(spec.geometry), spec.characteristic_length)
     for f in (dig.resistance((0.0, 0.0), (-0.7, 0.66), (-0.7, 0.0), (0.5, 0.0)),
               dig.resistance((6.0, 0.1), (5.3, 0.7), (5.3, 0.1), (0.0, 0.0))):
         assert f.resist == 0.0 and f.press == 0.0

@@ -22,7 +22,8 @@ from scaletwin_envs.policies import ScriptedDigPolicy
 from scaletwin_envs.recording.recorder import EpisodeRecorder, record_episode
 from scaletwin_envs.rollout import run_episode
 from scaletwin_envs.signals import LINKAGE_BODIES
-from scaletwin_envs.specs.loader import LoaderSpec, make_loader
+from scaletwin_envs.specs import make_loader
+from scaletwin_envs.specs.loader import LoaderSpec
 
 ROUTE2 = ("F21_route2", "F31_route2", "Pf_lift_route2", "Pf_tilt_route2", "residual_F21", "residual_F31",
           "residual_Pf_lift", "residual_Pf_tilt")

@@ -23,7 +23,7 @@ from scaletwin_envs.recording.recorder import record_episode
 from scaletwin_envs.recording.recording import read_recording
 from scaletwin_envs.recording.schema import TRUCK_UNITS
 from scaletwin_envs.runtime import qpos_for_pose
-from scaletwin_envs.specs.loader import make_loader
+from scaletwin_envs.specs import make_loader
 from scaletwin_envs.specs.soil import make_soil
 
 

@@ -22,7 +22,7 @@ from scaletwin_envs.builder import (
     supply_dofs,
 )
 from scaletwin_envs.signals import SignalReader
-from scaletwin_envs.specs.loader import make_loader
+from scaletwin_envs.specs import make_loader
 
 
 def _tilt_run(servo: str, load: float, speed: float, kick: float | None, steps: int = 400

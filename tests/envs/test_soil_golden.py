@@ -27,6 +27,7 @@ import math
 import numpy as np
 import pytest
 
+from scaletwin_envs.physics.bucket import heaped_capacity
 from scaletwin_envs.physics.dig import DigModel
 from scaletwin_envs.physics.earthmoving import bearing_pressure, blade_force, n_factors, side_drag
 from scaletwin_envs.physics.pile import Pile
@@ -192,7 +193,7 @@ def test_dig_resistance_components(soil_name: str, depth: float) -> None:
     spec = make_loader("er12")
     soil, width, length = make_soil(soil_name), 1.5, spec.characteristic_length
     pile = Pile(toe_x=-5.0, height=depth, repose=math.radians(35), length=10.0, width=width)
-    dig = DigModel(soil, pile, width, spec.heaped_capacity, length)
+    dig = DigModel(soil, pile, width, heaped_capacity(spec.geometry), length)
     f = dig.resistance((0.0, 0.0), (-0.7, 0.66), (-0.7, 0.0), (0.5, 0.0))
     along, press, _ = reference_blade(soil, width, depth, math.atan2(0.66, 0.7))
     n_c, n_q = reference_bearing_factors(soil.friction_angle)

@@ -15,6 +15,7 @@ import scaletwin_envs
 import zoo
 from scaletwin.cli import main
 from scaletwin_envs.evaluation import KPI_COLUMNS, evaluate_policies, plot_kpis, summarize, write_csv, write_markdown
+from scaletwin_envs.physics.bucket import heaped_capacity
 from scaletwin_envs.policies import RandomPolicy, ScriptedDigPolicy
 from scaletwin_envs.rollout import run_episode
 from scaletwin_envs.specs import make_loader, make_soil
@@ -80,7 +81,7 @@ def _check_derived(row: pd.Series, scale: str, soil: str) -> None:
         assert row["specific_energy"] == pytest.approx(row["hydraulic_work"] / row["loaded_mass"], rel=1e-9)
     else:  # an empty bucket has no energy per kilogram
         assert math.isnan(row["specific_energy"])
-    assert row["loaded_mass"] == pytest.approx(row["fill_factor"] * spec.heaped_capacity * density, rel=1e-9)
+    assert row["loaded_mass"] == pytest.approx(row["fill_factor"] * heaped_capacity(spec.geometry) * density, rel=1e-9)
     assert row["length_ratio"] == pytest.approx(spec.scale, rel=1e-12)
 
 

@@ -8,6 +8,7 @@ import pytest
 
 import scaletwin_envs
 import zoo
+from scaletwin_envs.physics.bucket import heaped_capacity
 from scaletwin_envs.recording.recorder import record_episode
 from scaletwin_envs.rollout import run_episode
 from scaletwin_envs.specs import make_loader, make_soil
@@ -50,7 +51,8 @@ def test_dataset_recorder_runs_the_learned_cycle(learned: zoo.ZooPolicy):
     spec, soil = make_loader("er12"), make_soil("gravel")
     dt = float(env.unwrapped.dt)
     np.testing.assert_allclose(data["time"], dt * data["step"], rtol=1e-9)
-    np.testing.assert_allclose(data["m_load"], data["fill_factor"] * spec.heaped_capacity * soil.density, rtol=1e-9)
+    capacity = heaped_capacity(spec.geometry)
+    np.testing.assert_allclose(data["m_load"], data["fill_factor"] * capacity * soil.density, rtol=1e-9)
     power = sum(np.maximum(data[f"Pf_{k}"] * data[f"{k}_speed"], 0.0) for k in ("lift", "tilt"))
     np.testing.assert_allclose(data["hydraulic_work"], np.cumsum(power * dt), rtol=1e-9)
     phases = list(dict.fromkeys(data["phase"]))

@@ -17,7 +17,7 @@ from scaling.dimensions.groups import PiGroup
 from scaling.evaluation import metrics as ev
 from scaling.evaluation.miniature import static_rows
 from scaling.runs.pipeline import PipelineConfig, ScalingPipeline, model_specs
-from scaling.runs.run_io import load_run, read_metrics
+from scaling.runs.run_io import load_run, read_metrics, save_run
 
 FAST = {"FFNN": {"epochs": 40, "patience": 10}, "GRUModel": {"epochs": 5, "window": 32, "stride": 16},
         "DeepEnsemble": {"epochs": 20, "k": 2, "patience": 10}}
@@ -32,7 +32,8 @@ def fast_config(names: list[str] | None = None) -> PipelineConfig:
 def run(tiny_frame: pd.DataFrame, tmp_path_factory: pytest.TempPathFactory):
     held = tiny_frame[tiny_frame["machine"] == "wa475"].assign(machine="wa475-copy")
     out = tmp_path_factory.mktemp("run")
-    result = ScalingPipeline(fast_config()).run(DataBundle(tiny_frame, held), out, progress=False)
+    result = ScalingPipeline(fast_config()).run(DataBundle(tiny_frame, held), progress=False)
+    save_run(result, out)
     return result, out
 
 

@@ -13,7 +13,8 @@ import pytest
 
 from scaletwin_envs.design_space import DesignSpace, build_design
 from scaletwin_envs.physics.kinematics import LinkageUnreachable, pose_from_cylinders
-from scaletwin_envs.specs.loader import GRAVITY, LoaderSpec, make_loader
+from scaletwin_envs.specs import make_loader
+from scaletwin_envs.specs.loader import GRAVITY, LoaderSpec
 from scaling.data.delta_dataset import DeltaDataset
 from scaling.data.product_line import (
     LINKAGE_GROUPS,

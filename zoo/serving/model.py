@@ -34,7 +34,7 @@ import warnings
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from fractions import Fraction
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -58,9 +58,7 @@ from zoo.serving.kernels import (
     normal_quantile,
 )
 from zoo.serving.parallel import map_ordered, resolve_threads
-
-if TYPE_CHECKING:
-    from zoo.serving.stream import Prediction, Stream
+from zoo.serving.stream import Prediction, Stream
 
 
 def served_variables(output: PiGroup, inputs: Sequence[PiGroup], variable: str
@@ -613,8 +611,6 @@ class ScalingModel:
 
     def stream(self, *, on_prediction: Callable[[Prediction], Any] | None = None, rerun: Any = None) -> Stream:
         """A :class:`~zoo.serving.stream.Stream` over this model (push rows one at a time)."""
-        from zoo.serving.stream import Stream
-
         return Stream(self, on_prediction=on_prediction, rerun=rerun)
 
     def predict_stream(self, rows: Iterable[Any], **kwargs: Any) -> Iterator[Prediction]:

@@ -17,7 +17,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
@@ -26,9 +26,23 @@ from zoo.serving.inputs import InputError, column_plan
 if TYPE_CHECKING:
     import rerun as rr
 
-    from zoo.serving.model import ScalingModel
-
 APP_ID = "scaletwin-serving"
+
+
+class RowModel(Protocol):
+    """What a :class:`Stream` serves: a model that scales one SI row at a time, such as
+    :class:`~zoo.serving.model.ScalingModel` (the stream needs nothing else of it)."""
+
+    @property
+    def name(self) -> str: ...  # the model's name (the rerun recording's)
+
+    variable: str  # the scaled force, e.g. "F21"
+    target_variables: tuple[str, ...]  # a row's SI values, in this order
+
+    def row(self, x: Sequence[float], state: Any, source: Sequence[float] | None = None
+            ) -> tuple[float, float, float, float, bool, Any]:
+        """(force, lower, upper, δ1, extrapolated, next state) for one SI row (``state``: the recurrent state)."""
+        ...
 
 
 @dataclass(frozen=True)
@@ -45,9 +59,10 @@ class Prediction:
 
 
 class Stream:
-    """Row-by-row serving of one :class:`~zoo.serving.model.ScalingModel` (see the module docstring)."""
+    """Row-by-row serving of one :class:`RowModel`, e.g. a :class:`~zoo.serving.model.ScalingModel` (see the
+    module docstring)."""
 
-    def __init__(self, model: ScalingModel, *, on_prediction: Callable[[Prediction], Any] | None = None,
+    def __init__(self, model: RowModel, *, on_prediction: Callable[[Prediction], Any] | None = None,
                  rerun: Any = None) -> None:
         self.model = model
         self.on_prediction = on_prediction
