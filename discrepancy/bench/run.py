@@ -57,15 +57,16 @@ def _same_target(reported: str | None, truth: Effect) -> bool:
 
 def _matches(planted: list[Effect], scales: Scales, d: Diagnosis) -> list[dict[str, Any]]:
     """Per planted effect: named (name + target), named as a set (the truth among the named effect's
-    ``alternatives``, set ≤ :data:`MAX_SET`), by name only, parameter error and coverage."""
+    ``alternatives``, or among what a cleared start check found indistinguishable from the pile, the pile counted;
+    set ≤ :data:`MAX_SET`), by name only, parameter error and coverage."""
+    sets = [[(e.effect, e.target), *map(parse_label, getattr(e, "alternatives", None) or [])] for e in d.effects]
+    if d.start_check is not None and d.start_check.cleared:
+        sets.append([("pile", None), *map(parse_label, d.start_check.indistinguishable)])
     out = []
     for truth in planted:
         hit = next((e for e in d.effects if e.effect == truth.name and _same_target(e.target, truth)), None)
-        in_set = False
-        for e in d.effects:
-            members = [(e.effect, e.target), *map(parse_label, getattr(e, "alternatives", None) or [])]
-            if len(set(members)) <= MAX_SET and any(n == truth.name and _same_target(t, truth) for n, t in members):
-                in_set = True
+        in_set = any(len(set(members)) <= MAX_SET and any(n == truth.name and _same_target(t, truth)
+                                                          for n, t in members) for members in sets)
         row: dict[str, Any] = {"effect": truth.name, "target": truth.target,
                                "pi": truth.to_pi(scales), "named": hit is not None, "named_as_set": in_set,
                                "name_only": any(e.effect == truth.name for e in d.effects),

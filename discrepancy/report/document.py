@@ -18,7 +18,7 @@ dimensionless group as ``pi_<parameter>``, ``units`` the SI unit of each paramet
 effect's likelihood weight exp(−ΔJ/2) among all trials of its round, null on ``unexplained``;
 ``explained_fraction`` the share of the excess residual left before its round that the effect (on
 ``unexplained``: the closest candidate) removes; ``alternatives`` the effect labels the recording cannot tell apart
-from it (``"pile"`` when a start refitted on a seedless log's whole length leaves nothing located). ``fit`` is on
+from it. ``fit`` is on
 held-out cycles when ``held_out``; a ``flags`` entry ("worse", "normaliser near zero") marks an NRMSE not to be
 trusted as an improvement (:func:`discrepancy.search.fit.entry_flags`), and ``worse_overall`` says the correction
 made the comparison worse as a whole. ``search`` is there only when the search budget
@@ -35,7 +35,7 @@ from pathlib import Path
 from typing import Any
 
 from discrepancy.effects import CATALOGUE, UNEXPLAINED
-from discrepancy.pipeline import PILE_ALTERNATIVE, Diagnosis, ReportedEffect
+from discrepancy.pipeline import Diagnosis, ReportedEffect
 from discrepancy.report.schema import validate
 from discrepancy.search.fit import WORSE, Comparison
 from scaletwin_envs.signal_units import SIGNAL_UNITS
@@ -198,10 +198,6 @@ def effect_lines(e: ReportedEffect) -> tuple[str, list[str]]:
     if e.alternatives:
         lines.append("cannot be told apart from: " + ", ".join(e.alternatives))
         for a in e.separated_by:
-            if a.label == PILE_ALTERNATIVE:
-                lines.append(f"  {a.label}: a start refitted on the whole log leaves nothing located; a log without "
-                             "seed does not pin its pile down")
-                continue
             where = "in this log" if a.in_log else "not in this log"
             lines.append(f"  {a.label}: objective +{a.delta_objective:.1f}; {a.channel} ({where}) separates them "
                          f"best ({a.separation:.1f} noise SD apart)")
@@ -253,9 +249,11 @@ def input_notes(d: Diagnosis) -> list[str]:
                 f"{math.degrees(c.options.get('repose_angle', math.nan)):.3g}°, {c.pile_shift:.2g} half-ranges of "
                 "the env's draw from the twin's pile")
         if c.cleared:
-            out.append(f"A start refitted on the whole log ({pile}) leaves none of the {c.located_before} located "
-                       "windows: all of it may be the pile, which a log without seed does not pin down, rather than "
-                       "what is named below.")
+            found = (f" Against the early-dig start the search reached {', '.join(c.indistinguishable)}: this log "
+                     "cannot tell them from that pile." if c.indistinguishable else "")
+            out.append(f"A start refitted on the whole log ({pile}) leaves none of the {c.located_before} windows "
+                       "located against the start fitted on the early dig: the log is consistent with the twin, whose "
+                       f"pile a log without seed does not pin down, so nothing is named.{found}")
         else:
             out.append(f"Against a start refitted on the whole log ({pile}) {c.located_after} windows stay located "
                        f"({c.located_before} against the twin's start): the pile alone does not explain them.")
@@ -283,6 +281,8 @@ def text_report(d: Diagnosis, width: int | None = None) -> str:
 def _nothing_named(d: Diagnosis) -> str:
     """Why a diagnosis that names nothing names nothing (it located nothing, the sensors' drift explains what it
     located, or a few faint windows are put down to chance)."""
+    if d.start_check is not None and d.start_check.cleared:
+        return "what was located is the pile (see above)."
     if not d.located:
         return "nothing differs beyond noise."
     if d.identification.drift:
