@@ -282,7 +282,8 @@ def _nothing_named(d: Diagnosis) -> str:
     """Why a diagnosis that names nothing names nothing (it located nothing, the sensors' drift explains what it
     located, or a few faint windows are put down to chance)."""
     if d.start_check is not None and d.start_check.cleared:
-        return "what was located is the pile (see above)."
+        return ("what was located is the pile: a start refitted on the whole log leaves nothing located, and a log "
+                "without seed does not pin its pile down.")
     if not d.located:
         return "nothing differs beyond noise."
     if d.identification.drift:
@@ -330,7 +331,7 @@ def markdown(d: Diagnosis, plots: list[str] | None = None) -> str:
              f"Twin: {d.twin.loader.name}, soil {d.twin.soil.name}, seed {d.twin.seed}; {len(d.train)} control steps "
              f"of {d.train.dt:.4g} s; {len(d.held_out)} held-out cycle(s); {d.simulations} twin replays.", "",
              "## Named effects", "", *_effects_section(d), ""]
-    if d.identification.unexplained:
+    if UNEXPLAINED in d.named:
         lines += ["The catalogue does not explain the residual (`unexplained`): the closest candidates are listed; "
                   "none is reported as found.", ""]
     if d.budget is not None and d.budget.cut:

@@ -26,7 +26,7 @@ from discrepancy.data.fieldlog import (
     resample_commands,
 )
 from discrepancy.pipeline import DiagnoseOptions, StartCheck, diagnose
-from discrepancy.report.document import text_report, to_json
+from discrepancy.report.document import markdown, text_report, to_json
 from discrepancy.twin.plant import Plan
 from discrepancy.twin.runner import SerialRunner
 from discrepancy.twin.start import PILE, StartEstimate, estimate_start, pile_shift, refit_whole_log
@@ -248,7 +248,8 @@ def test_the_start_check_is_reported_and_validated(filtered_log: tuple[TwinSpec,
         assert phrase in text
         if after == 0:
             assert "reached payload_mass_error: this log cannot tell them from that pile" in text
-            assert "No effect named: what was located is the pile" in text
+            assert "No effect named: what was located is the pile: a start refitted on the whole log" in text
+            assert "No effect is named: what was located is the pile" in markdown(shown)
 
 
 
