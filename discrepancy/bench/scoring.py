@@ -264,8 +264,9 @@ def table(results: list[dict[str, Any]], header: str = "", families: Sequence[st
 
 def start_check_lines(ran: list[dict[str, Any]]) -> list[str]:
     """How often a start refitted on the whole log (``Diagnosis.start_check``, logs without seed whose twin left
-    windows located) cleared every located window, per case kind: on a null that says the pile explains what was
-    located; on a planted effect, that the log cannot tell the effect from its pile."""
+    windows located) cleared them (nothing left, or only a few faint windows: ``strong_rest`` false), per case kind:
+    then the diagnosis names nothing (on a null the pile explains what was located; on a planted effect the log
+    cannot tell the effect from its pile)."""
     checked = [r for r in ran if r.get("start_check")]
     if not checked:
         return []
@@ -273,10 +274,16 @@ def start_check_lines(ran: list[dict[str, Any]]) -> list[str]:
     for kind in ("null", "single", "double", "ooc"):
         rows = [r for r in checked if r["kind"] == kind]
         if rows:
-            cleared = sum(r["start_check"]["located_after"] == 0 for r in rows)
+            cleared = sum(cleared_check(r["start_check"]) for r in rows)
             parts.append(f"{kind} {cleared} of {len(rows)}")
     return [f"Start check (a log without seed whose twin left windows located; the start refitted on the whole "
-            f"log): it left nothing located in {', '.join(parts)} such cases.", ""]
+            f"log): it left nothing located, or only a few faint windows, in {', '.join(parts)} such cases.", ""]
+
+
+def cleared_check(check: dict[str, Any]) -> bool:
+    """Whether a recorded start check (``StartCheck.to_dict``) cleared; records from before ``strong_rest`` was
+    kept cleared only with nothing left."""
+    return check["located_after"] == 0 or not check.get("strong_rest", True)
 
 
 def _cell(text: str, limit: int = 160) -> str:

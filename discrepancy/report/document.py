@@ -251,9 +251,11 @@ def input_notes(d: Diagnosis) -> list[str]:
         if c.cleared:
             found = (f" Against the early-dig start the search reached {', '.join(c.indistinguishable)}: this log "
                      "cannot tell them from that pile." if c.indistinguishable else "")
-            out.append(f"A start refitted on the whole log ({pile}) leaves none of the {c.located_before} windows "
-                       "located against the start fitted on the early dig: the log is consistent with the twin, whose "
-                       f"pile a log without seed does not pin down, so nothing is named.{found}")
+            left = (f"none of the {c.located_before} windows" if c.located_after == 0 else
+                    f"{c.located_after} faint window(s) of the {c.located_before} (put down to chance)")
+            out.append(f"A start refitted on the whole log ({pile}) leaves {left} located against the start fitted on "
+                       "the early dig: the log is consistent with the twin, whose pile a log without seed does not pin "
+                       f"down, so nothing is named.{found}")
         else:
             out.append(f"Against a start refitted on the whole log ({pile}) {c.located_after} windows stay located "
                        f"({c.located_before} against the twin's start): the pile alone does not explain them.")
@@ -282,8 +284,8 @@ def _nothing_named(d: Diagnosis) -> str:
     """Why a diagnosis that names nothing names nothing (it located nothing, the sensors' drift explains what it
     located, or a few faint windows are put down to chance)."""
     if d.start_check is not None and d.start_check.cleared:
-        return ("what was located is the pile: a start refitted on the whole log leaves nothing located, and a log "
-                "without seed does not pin its pile down.")
+        return ("what was located is the pile: a start refitted on the whole log leaves nothing located but what is "
+                "put down to chance, and a log without seed does not pin its pile down.")
     if not d.located:
         return "nothing differs beyond noise."
     if d.identification.drift:

@@ -175,7 +175,7 @@ def identify(ctx: Context, located: LocateResult, suspects: set[str], opts: Iden
                 if not after.located:
                     return out
                 tolerable = judge.removed >= EXPLAINED and (len(after.located) <= _tolerated(located)
-                                                            or not _strong(after))
+                                                            or not strong(after))
         rnd = _round(ctx, out.effects, cost, current, suspects, opts, guard)
         if rnd is None:
             break
@@ -192,9 +192,9 @@ def identify(ctx: Context, located: LocateResult, suspects: set[str], opts: Iden
         current = after
         if not after.located:
             return out
-        tolerable = judge.removed >= EXPLAINED and (len(after.located) <= _tolerated(located) or not _strong(after))
+        tolerable = judge.removed >= EXPLAINED and (len(after.located) <= _tolerated(located) or not strong(after))
     # a few faint windows that no catalogue effect explains are put down to chance, not to missing physics
-    out.unexplained = not tolerable and (bool(out.effects) or _strong(located))
+    out.unexplained = not tolerable and (bool(out.effects) or strong(located))
     if not out.unexplained:  # the last round found nothing worth adding: its trials are not an accepted effect
         out.rounds = out.rounds[: len(out.effects)]
     elif only_closest(out, ctx.budget.cut):  # say unexplained rather than name the closest entry
@@ -236,8 +236,9 @@ def _accepts(judge: _Judgement, further: bool, windows_before: int, windows_afte
     return judge.gain >= MIN_NEXT or (cleared >= MIN_CLEARED and judge.gain >= MIN_NEXT / 3)
 
 
-def _strong(located: LocateResult) -> bool:
-    """Enough evidence to claim missing physics: several windows, or one with a large effect size."""
+def strong(located: LocateResult) -> bool:
+    """Enough evidence to claim missing physics: several windows, or one with a large effect size (fewer, fainter
+    ones are put down to chance; :data:`STRONG_COUNT`, :data:`STRONG_SIZE`)."""
     return len(located.located) >= STRONG_COUNT or max(loc.effect_size for loc in located.located) >= STRONG_SIZE
 
 

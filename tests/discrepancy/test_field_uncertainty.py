@@ -236,17 +236,20 @@ def test_the_start_check_is_reported_and_validated(filtered_log: tuple[TwinSpec,
     start is listed as indistinguishable from the pile; not cleared, the windows are beyond the pile."""
     twin, ep = filtered_log
     d = diagnose(ep, twin, options=DiagnoseOptions(budget=20))
-    for after, found, phrase in ((0, ("payload_mass_error",), "so nothing is named"),
-                                 (3, (), "the pile alone does not explain them")):
-        check = StartCheck({"pile_distance": 0.47, "repose_angle": 0.6}, 5, after, 40, 0.6, found)
-        shown = dataclasses.replace(d, start_check=check, effects=[] if after == 0 else d.effects)
+    for after, rest, found, phrase in ((0, False, ("payload_mass_error",), "leaves none of the 5 windows"),
+                                       (2, False, ("payload_mass_error",), "2 faint window(s) of the 5"),
+                                       (3, True, (), "the pile alone does not explain them")):
+        check = StartCheck({"pile_distance": 0.47, "repose_angle": 0.6}, 5, after, 40, 0.6, found, rest)
+        assert check.cleared is not rest
+        shown = dataclasses.replace(d, start_check=check, effects=[] if check.cleared else d.effects)
         doc = to_json(shown)
         assert doc["start_check"] == {"options": {"pile_distance": 0.47, "repose_angle": 0.6}, "located_before": 5,
                                       "located_after": after, "replays": 40, "pile_shift": 0.6,
-                                      "indistinguishable": list(found)}
+                                      "indistinguishable": list(found), "strong_rest": rest}
         text = " ".join(text_report(shown, width=400).split())
         assert phrase in text
-        if after == 0:
+        if check.cleared:
+            assert "so nothing is named" in text
             assert "reached payload_mass_error: this log cannot tell them from that pile" in text
             assert "No effect named: what was located is the pile: a start refitted on the whole log" in text
             assert "No effect is named: what was located is the pile" in markdown(shown)
