@@ -249,17 +249,24 @@ def input_notes(d: Diagnosis) -> list[str]:
                 f"{math.degrees(c.options.get('repose_angle', math.nan)):.3g}°, {c.pile_shift:.2g} half-ranges of "
                 "the env's draw from the twin's pile")
         if c.cleared:
-            found = (f" Against the early-dig start the search reached {', '.join(c.indistinguishable)}: this log "
-                     "cannot tell them from that pile." if c.indistinguishable else "")
-            left = (f"none of the {c.located_before} windows" if c.located_after == 0 else
-                    f"{c.located_after} faint window(s) of the {c.located_before} (put down to chance)")
-            out.append(f"A start refitted on the whole log ({pile}) leaves {left} located against the start fitted on "
-                       "the early dig: the log is consistent with the twin, whose pile a log without seed does not pin "
-                       f"down, so nothing is named.{found}")
+            effects = [x for x in c.indistinguishable if x != UNEXPLAINED]
+            found = (f" Against the early-dig start the search reached {', '.join(effects)}: this log cannot tell "
+                     f"{'it' if len(effects) == 1 else 'them'} from that pile." if effects else
+                     " Against the early-dig start the search found no catalogue effect for it (unexplained)."
+                     if c.indistinguishable else "")
+            left = "none" if c.located_after == 0 else f"only {c.located_after} faint (put down to chance)"
+            verb = "is" if c.located_before == 1 else "are"
+            out.append(f"Against the start fitted on the early dig {_windows(c.located_before)} {verb} located; a "
+                       f"start refitted on the whole log ({pile}) leaves {left}: the log is consistent with the twin, "
+                       f"whose pile a log without seed does not pin down, so nothing is named.{found}")
         else:
             out.append(f"Against a start refitted on the whole log ({pile}) {c.located_after} windows stay located "
                        f"({c.located_before} against the twin's start): the pile alone does not explain them.")
     return out
+
+
+def _windows(n: int) -> str:
+    return f"{n} window" + ("" if n == 1 else "s")
 
 
 def text_report(d: Diagnosis, width: int | None = None) -> str:
@@ -284,8 +291,8 @@ def _nothing_named(d: Diagnosis) -> str:
     """Why a diagnosis that names nothing names nothing (it located nothing, the sensors' drift explains what it
     located, or a few faint windows are put down to chance)."""
     if d.start_check is not None and d.start_check.cleared:
-        return ("what was located is the pile: a start refitted on the whole log leaves nothing located but what is "
-                "put down to chance, and a log without seed does not pin its pile down.")
+        return ("what was located is the pile's (a start refitted on the whole log leaves nothing located but what "
+                "is put down to chance; a log without seed does not pin its pile down).")
     if not d.located:
         return "nothing differs beyond noise."
     if d.identification.drift:
