@@ -265,6 +265,13 @@ def input_notes(d: Diagnosis) -> list[str]:
     return out
 
 
+def _start(d: Diagnosis) -> str:
+    """How the twin starts: from the log's reset seed, or (a log without one) from a start estimated from the log."""
+    if d.twin.start:
+        return "start pose and pile estimated from the log (it has no reset seed)"
+    return f"reset seed {d.twin.seed}"
+
+
 def _windows(n: int) -> str:
     return f"{n} window" + ("" if n == 1 else "s")
 
@@ -337,7 +344,7 @@ def _fit_section(d: Diagnosis) -> list[str]:
 def markdown(d: Diagnosis, plots: list[str] | None = None) -> str:
     """The Markdown report (``plots``: image paths relative to the report)."""
     lines = [f"# Discrepancy diagnosis: {d.train.name}", "",
-             f"Twin: {d.twin.loader.name}, soil {d.twin.soil.name}, seed {d.twin.seed}; {len(d.train)} control steps "
+             f"Twin: {d.twin.loader.name}, soil {d.twin.soil.name}, {_start(d)}; {len(d.train)} control steps "
              f"of {d.train.dt:.4g} s; {len(d.held_out)} held-out cycle(s); {d.simulations} twin replays.", "",
              "## Named effects", "", *_effects_section(d), ""]
     if UNEXPLAINED in d.named:

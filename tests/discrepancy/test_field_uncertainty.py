@@ -254,6 +254,7 @@ def test_the_start_check_is_reported_and_validated(filtered_log: tuple[TwinSpec,
             assert "reached payload_mass_error: this log cannot tell it from that pile" in text
             assert "No effect named: what was located is the pile's (a start refitted on the whole log" in text
             assert "No effect is named: what was located is the pile's" in markdown(shown)
+            assert "start pose and pile estimated from the log (it has no reset seed)" in markdown(shown)
 
 
 
