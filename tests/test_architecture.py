@@ -122,3 +122,17 @@ def test_no_import_runs_upward_or_sideways(package: str) -> None:
     bad = sorted(f"{m} -> {t}" for m, targets in GRAPH.items() if m.split(".")[0] == package for t in targets
                  if t.split(".")[0] != package and LAYERS[t.split(".")[0]] >= LAYERS[package])
     assert not bad, f"{package} (layer {LAYERS[package]}) imports a package at its own layer or above: {bad}"
+
+
+#: ``scaling``'s stages in the order data flows (README): no stage imports a later one.
+SCALING_STAGES = ("dimensions", "data", "models", "evaluation", "runs")
+
+
+def test_scaling_stages_import_only_earlier_ones() -> None:
+    def stage(module: str) -> int | None:
+        parts = module.split(".")
+        return SCALING_STAGES.index(parts[1]) if len(parts) > 1 and parts[1] in SCALING_STAGES else None
+
+    bad = sorted(f"{m} -> {t}" for m, targets in GRAPH.items() if m.startswith("scaling.") for t in targets
+                 if (a := stage(m)) is not None and (b := stage(t)) is not None and b > a)
+    assert not bad, f"a stage of scaling imports a later one: {bad}"
