@@ -125,3 +125,22 @@ def test_out_of_catalogue_is_unexplained(name: str, size: float, twin) -> None:
     d = diagnose(real.noisy, twin, options=DiagnoseOptions(workers=2))
     assert d.located and d.named == [UNEXPLAINED], d.named
     assert d.effects[0].confounded_with  # the closest catalogue entries are listed, not named
+
+
+def test_a_lone_short_window_that_barely_passes_is_not_strong_evidence() -> None:
+    """A window of one or two steps reaches effect size 3 just by passing BH at 1 %: alone, it is strong evidence of
+    missing physics only when it is significant well beyond that level (q ≤ STRONG_Q); three windows always are."""
+    import numpy as np
+
+    from discrepancy.search.identify import STRONG_Q, strong
+    from discrepancy.stats.locate import Located, LocateResult
+
+    def result(*windows: tuple[float, float]) -> LocateResult:
+        located = [Located("alpha1", "curl", 3.4, 4.2, size, q) for size, q in windows]
+        return LocateResult([], ("alpha1",), np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0), located)
+
+    assert not strong(result((3.0, 0.0099)))  # the white 50 Hz null that had a damping named
+    assert strong(result((3.0, 1.3e-5)))
+    assert not strong(result((2.0, 1e-6)))  # a faint window, however significant, stays faint alone
+    assert strong(result((1.5, 0.009), (1.5, 0.009), (1.5, 0.009)))
+    assert STRONG_Q < 0.01
