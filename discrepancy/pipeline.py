@@ -44,8 +44,6 @@ from scaletwin_envs.parallel import Executor
 from scaletwin_envs.recording import Recording
 
 Source = EpisodeData | Recording | str | Path
-#: The alternative a cleared :class:`StartCheck` adds to every named effect: the log's own pile (and start), which
-#: a log without seed does not pin down.
 
 
 @dataclass(frozen=True)
@@ -286,7 +284,8 @@ def _run(train: EpisodeData, held_twins: list[tuple[EpisodeData, Runner]], spec:
                                                                opts.null, opts.polish, opts.finalists,
                                                                opts.budget, opts.time_budget), guard)
     named = ident.effects
-    if check is not None and check.cleared:  # the pile explains it all: nothing is named (see StartCheck)
+    pile = check is not None and check.cleared  # the pile explains it all: nothing is named (see StartCheck)
+    if pile:
         found_labels = [e.label() for e in named] + ([UNEXPLAINED] if ident.unexplained else [])
         check = dataclasses.replace(check, indistinguishable=tuple(found_labels))
         named = []
@@ -303,7 +302,7 @@ def _run(train: EpisodeData, held_twins: list[tuple[EpisodeData, Runner]], spec:
         traces = {ep.name: {"twin": r.get([]), "corrected": r.get(effects)} for ep, r in zip(eps, reps, strict=True)}
         if held:
             traces[train.name] = {"twin": replays.get([]), "corrected": replays.get(effects)}
-    reported = _reported(ctx, ident, result, found) if named or check is None or not check.cleared else []
+    reported = [] if pile else _reported(ctx, ident, result, found)
     timer.steps["total"] = sum(timer.steps.values())
     return Diagnosis(spec, ctx.names, found.located, reported, comparison, ident, result, checks, timer.steps, train,
                      held, traces, found, replays.runs + sum(r.runs for r in reps if r is not replays) + 1
