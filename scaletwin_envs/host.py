@@ -15,6 +15,9 @@ from typing import Any
 
 #: x86 SIMD extensions, widest first (the first present is reported)
 SIMD_SETS = ("avx512f", "avx2", "avx", "sse4_2")
+#: Environment variable naming the commit of a tree copied without its git metadata (a cluster node, a lent
+#: machine that receives the working tree only): :func:`git_revision` reports it where git cannot tell.
+REVISION_ENV = "SCALETWIN_REVISION"
 
 
 def cpu() -> tuple[str, str]:
@@ -43,7 +46,8 @@ def host_line() -> str:
 
 def git_revision(root: str | Path | None = None) -> str:
     """The commit checked out at ``root`` (default: this package's checkout), ``+dirty`` when tracked files have
-    changes, or ``unknown`` outside git (read-only git calls)."""
+    changes (read-only git calls). Outside git: the commit named by :data:`REVISION_ENV`, marked as such, or
+    ``unknown``."""
     cwd = Path(root) if root is not None else Path(__file__).resolve().parents[1]
     try:
         rev = subprocess.run(["git", "rev-parse", "--short=12", "HEAD"], cwd=cwd, capture_output=True, text=True,
@@ -51,5 +55,6 @@ def git_revision(root: str | Path | None = None) -> str:
         dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=cwd,
                                capture_output=True, text=True, timeout=10, check=True).stdout.strip()
     except (OSError, subprocess.SubprocessError):
-        return "unknown"
+        given = os.environ.get(REVISION_ENV, "").strip()
+        return f"{given} (copied without git, {REVISION_ENV})" if given else "unknown"
     return rev + ("+dirty" if dirty else "")
