@@ -46,7 +46,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
 
 from discrepancy.context import HUBER, huber
 from discrepancy.data.channels import COMPARED
@@ -121,20 +120,6 @@ EARLY_SHARE = 0.35
 #: with it; the nulls no worse).
 START_SPREAD = 0.2
 DRAWS = 8  # draws kept (the null runs cycle through them)
-#: Each draw is then kept within what the rows the start is fitted on allow (:func:`_plausible`): its seen quantities
-#: are pulled back towards the estimate, by bisection in this many halvings, until the draw's misfit on those rows
-#: exceeds the estimate's by no more than a likelihood-ratio bound (:data:`PLAUSIBLE_LEVEL` of a chi-square with as
-#: many degrees of freedom as quantities seen). Drawn at :data:`START_SPREAD` in every direction, a start moved
-#: across the valley of the misfit (distance against repose angle) fitted the early rows 5 to 100 times worse than
-#: the estimate (benchmark seed 49 cases 6 and 16, seed 61 cases 12 and 15: misfits 0.1-42 against 0.02-2.1): starts
-#: the log rules out, whose late-dig forces made the null's spread three to four times the residual of a planted
-#: effect, so that it was located nowhere. Along the valley the misfit barely grows, and the draw stays.
-SHRINK_STEPS = 4
-PLAUSIBLE_LEVEL = 0.95
-#: ... the estimate's misfit is floored at this (a noise of 0.1 % of a channel's spread) when scaling the bound
-PLAUSIBLE_FLOOR = 0.5 * 0.1**2
-#: Whether the draws are kept plausible (False: the isotropic draws alone, as before 2026-11-27).
-KEEP_PLAUSIBLE = True
 #: Shares of the rows after the early ones that :func:`refit_whole_log` fits in turn (the last: all). Over the
 #: whole log the start explains what only the late dig shows: on tuning nulls it cleared every located window that
 #: an early-rows start left (seed 3 case 0: repose angle 2.7 half-ranges off, 26 windows → 0), but it cleared the
@@ -368,7 +353,7 @@ def estimate_start(ep: EpisodeData, runner: Runner, profile_filter: bool = False
         current = {k: c for k, (c, _) in centre.items()}
         return StartEstimate(_start(current), float(default), float(default), fit.replays, unidentified, 0.0,
                              fit.rows, _draws(centre, current, unseen), 0.0)
-    draws = _plausible(fit, centre, current, unseen, z.shift if z is not None else 0.0)
+    draws = _draws(centre, current, unseen)
     offset = z.shift * ep.dt if z is not None else 0.0
     return StartEstimate(_start(current), misfit(z), float(default), fit.replays, unidentified, common_tau,
                          fit.rows, draws, offset)
@@ -411,17 +396,14 @@ def refit_whole_log(ep: EpisodeData, runner: Runner, estimate: StartEstimate) ->
     probe: _Probe | None = None
     unseen: tuple[str, ...] = ()
     replays = 1
-    fit = _Fit(ep, runner, len(ep))  # replaced by each share's fit below
     for share in WHOLE_LOG:
         fit = _Fit(ep, runner, min(len(ep), first + math.ceil(share * (len(ep) - first))))
         probe = fit.run([_start(current)])[0]
         probe, unseen = _levenberg_marquardt(fit, centre, current, probe)
         replays += fit.replays
-    before = fit.replays
-    draws = _plausible(fit, centre, current, unseen)
-    return StartEstimate(_start(current), misfit(probe), default, replays + fit.replays - before,
-                         tuple(k for k in unseen if k in PILE), estimate.sensor_tau, len(ep), draws,
-                         estimate.offset)
+    return StartEstimate(_start(current), misfit(probe), default, replays,
+                         tuple(k for k in unseen if k in PILE), estimate.sensor_tau, len(ep),
+                         _draws(centre, current, unseen), estimate.offset)
 
 
 def pile_shift(runner: Runner, options: Start) -> float:
@@ -466,50 +448,6 @@ def _draws(centre: dict[str, tuple[float, float]], current: dict[str, float], un
         drawn = np.clip(u + sd * rng.standard_normal(len(FITTED)), *_bounds(centre))
         out.append(_start({**current, **_from_units(centre, drawn)}))
     return tuple(out)
-
-
-def _plausible(fit: _Fit, centre: dict[str, tuple[float, float]], current: dict[str, float],
-               unseen: tuple[str, ...], shift: float = 0.0) -> tuple[Start, ...]:
-    """:func:`_draws`, each pulled back towards ``current`` where the rows of ``fit`` rule it out (see
-    :data:`SHRINK_STEPS`): a draw's seen quantities move by a share s of their drawn displacement, s the largest of
-    1, 1/2, 3/4, … (bisection) whose misfit stays within the likelihood-ratio bound; what the log does not see
-    keeps its draw. The bound: N_eff (m − m̂) / max(m̂, floor) ≤ χ²_k(:data:`PLAUSIBLE_LEVEL`), m the mean Huber
-    misfit (½ z² for small z, so m̂ estimates half the residual variance), N_eff the fitted samples discounted for
-    the residual's lag-one autocorrelation ρ (N (1 − ρ) / (1 + ρ)), k the quantities seen. Costs one replay of the
-    fitted rows for the estimate and :data:`DRAWS` per halving."""
-    draws = _draws(centre, current, unseen)
-    if not KEEP_PLAUSIBLE:
-        return draws
-    seen = np.array([k not in unseen for k in FITTED])
-    base = fit.run([_start(current)], [shift])[0]
-    if base is None or not seen.any():
-        return draws
-    u0 = _units(centre, current)
-    moves = [_units(centre, {**current, **dict(d)}) - u0 for d in draws]
-    z = base.z.reshape(-1, len(fit.names))
-    rho = [float(np.corrcoef(col[:-1], col[1:])[0, 1]) for col in z.T if len(col) > 2 and np.std(col) > 0]
-    r = float(np.clip(np.nanmean(rho) if rho else 0.0, 0.0, 0.99))
-    n_eff = max(z.size * (1.0 - r) / (1.0 + r), 1.0)
-    m0 = misfit(base)
-    bound = m0 + max(m0, PLAUSIBLE_FLOOR) * float(stats.chi2.ppf(PLAUSIBLE_LEVEL, int(seen.sum()))) / n_eff
-
-    def at(share: np.ndarray, which: np.ndarray) -> list[Start]:
-        return [_start({**current, **_from_units(centre, u0 + np.where(seen, share[i] * moves[i], moves[i]))})
-                for i in which]
-
-    every = np.arange(len(moves))
-    ok = np.array([misfit(p) <= bound for p in fit.run(at(np.ones(len(moves)), every), [shift] * len(moves))])
-    lo, hi = np.where(ok, 1.0, 0.0), np.ones(len(moves))
-    for _ in range(SHRINK_STEPS if not ok.all() else 0):
-        todo = np.flatnonzero(hi - lo > 1e-9)
-        mid = 0.5 * (lo + hi)
-        probes = fit.run(at(mid, todo), [shift] * len(todo))
-        for i, p in zip(todo, probes, strict=True):
-            if misfit(p) <= bound:
-                lo[i] = mid[i]
-            else:
-                hi[i] = mid[i]
-    return tuple(at(lo, every))
 
 
 def _levenberg_marquardt(fit: _Fit, centre: dict[str, tuple[float, float]], current: dict[str, float],
