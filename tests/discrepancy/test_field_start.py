@@ -114,6 +114,7 @@ def test_the_start_never_fits_worse_than_the_nominal_one() -> None:
     assert len(est.draws) > 0
 
 
+@pytest.mark.slow  # ~30-55 s on 2 cores: a whole seedless start fit of a benchmark case; the fit's other tests stay
 def test_a_direction_flat_at_the_current_point_does_not_stop_the_fit() -> None:
     """Benchmark seed 23 case 11 (a mini log without seed, white noise, a planted effect): a direction of the joint
     fit seen at an earlier point was flat at a later one, and the damped normal matrix was singular (LinAlgError
