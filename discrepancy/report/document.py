@@ -250,10 +250,12 @@ def input_notes(d: Diagnosis) -> list[str]:
                 "the env's draw from the twin's pile")
         if c.cleared:
             effects = [x for x in c.indistinguishable if x != UNEXPLAINED]
-            found = (f" Against the early-dig start the search reached {', '.join(effects)}: this log cannot tell "
-                     f"{'it' if len(effects) == 1 else 'them'} from that pile." if effects else
-                     " Against the early-dig start the search found no catalogue effect for it (unexplained)."
-                     if c.indistinguishable else "")
+            found = ""
+            if effects:
+                found = (f" Against the early-dig start the search reached {', '.join(effects)}: this log cannot tell "
+                         f"{'it' if len(effects) == 1 else 'them'} from that pile.")
+            elif c.indistinguishable:
+                found = " Against the early-dig start the search found no catalogue effect for it (unexplained)."
             left = "none" if c.located_after == 0 else f"only {c.located_after} faint (put down to chance)"
             verb = "is" if c.located_before == 1 else "are"
             out.append(f"Against the start fitted on the early dig {_windows(c.located_before)} {verb} located; a "

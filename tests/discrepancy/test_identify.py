@@ -7,6 +7,7 @@ so the suite stays fast; ``test_full_catalogue`` (slow) runs the whole catalogue
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from discrepancy import DiagnoseOptions, Effect, Scales, diagnose
@@ -14,6 +15,8 @@ from discrepancy.bench.cases import ooc_physics
 from discrepancy.bench.synth import record
 from discrepancy.effects import UNEXPLAINED, pi_unit
 from discrepancy.search.fit import RESOLUTION
+from discrepancy.search.identify import STRONG_Q, strong
+from discrepancy.stats.locate import Located, LocateResult
 
 #: effect → (target, parameters in Π, catalogue the search may choose from)
 CLEAR = {
@@ -130,11 +133,6 @@ def test_out_of_catalogue_is_unexplained(name: str, size: float, twin) -> None:
 def test_a_lone_short_window_that_barely_passes_is_not_strong_evidence() -> None:
     """A window of one or two steps reaches effect size 3 just by passing BH at 1 %: alone, it is strong evidence of
     missing physics only when it is significant well beyond that level (q ≤ STRONG_Q); three windows always are."""
-    import numpy as np
-
-    from discrepancy.search.identify import STRONG_Q, strong
-    from discrepancy.stats.locate import Located, LocateResult
-
     def result(*windows: tuple[float, float]) -> LocateResult:
         located = [Located("alpha1", "curl", 3.4, 4.2, size, q) for size, q in windows]
         return LocateResult([], ("alpha1",), np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0), located)
