@@ -21,11 +21,12 @@ from discrepancy.data.channels import RecordingError
 from discrepancy.data.episode import EpisodeData, from_recording, load_episode
 from discrepancy.effects import CATALOGUE, EFFECT_NAMES, UNEXPLAINED, Effect, EffectSpec, Scales
 from discrepancy.pipeline import DiagnoseOptions, Diagnosis, ReportedEffect, diagnose
+from discrepancy.search.identify import IdentifyOptions
 from discrepancy.stats.noise import NullSpec
 from discrepancy.twin.spec import TwinSpec
 
 __all__ = [
     "CATALOGUE", "EFFECT_NAMES", "UNEXPLAINED", "DiagnoseOptions", "Diagnosis", "Effect", "EffectSpec",
-    "EpisodeData", "NullSpec", "RecordingError", "ReportedEffect", "Scales", "TwinSpec", "diagnose",
+    "EpisodeData", "IdentifyOptions", "NullSpec", "RecordingError", "ReportedEffect", "Scales", "TwinSpec", "diagnose",
     "from_recording", "load_episode",
 ]

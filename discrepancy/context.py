@@ -1,9 +1,15 @@
-"""What every step of a diagnosis shares: the real episode, the twin's replays, the compared signals, the noise
-model and the objective (a robust sum of squared whitened residuals).
+"""What every step of a diagnosis shares: the real episode, the twin's replays, the compared signals, the null
+(noise model and calibration) and the objective (a robust sum of squared whitened residuals).
+
+A :class:`Context` is immutable: a step that re-estimates the null (around a twin with effects) returns a new one
+(:meth:`Context.with_null`) rather than writing into the one it was given, so which null judged what is read off
+the code. The replay cache and the :class:`~discrepancy.search.budget.Budget` it counts against are shared by
+every context of one diagnosis (one owner of the replay budget: the pipeline that builds it).
 """
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -28,9 +34,22 @@ def huber(z: np.ndarray) -> np.ndarray:
     return np.where(a <= HUBER, z * z, 2.0 * HUBER * a - HUBER * HUBER)
 
 
-@dataclass
+@dataclass(frozen=True)
+class NullModel:
+    """Noise model, window-statistic calibration and expected objective when nothing (more) differs
+    (:func:`discrepancy.stats.null.calibrate`)."""
+
+    noise: NoiseModel
+    calibration: NullCalibration
+    cost: float  # expected objective (Σ huber of whitened residuals) on noise alone
+    channel_noise: dict[str, float]  # sensor noise per channel, signal units
+    #: the window statistics' null under the whitening with drift (:meth:`NoiseModel.whiten_drift`)
+    drift_calibration: NullCalibration | None = None
+
+
+@dataclass(frozen=True)
 class Context:
-    """One real episode against its twin."""
+    """One real episode against its twin, judged under ``null`` (None until the null is estimated)."""
 
     real: EpisodeData
     replays: CachedReplays
@@ -38,24 +57,46 @@ class Context:
     real_matrix: np.ndarray
     nominal: SimResult
     scales: Scales
-    noise: NoiseModel | None = None
-    calibration: NullCalibration | None = None
-    null_cost: float = 0.0  # expected objective when nothing differs
-    drift_calibration: NullCalibration | None = None  # the null under the whitening with drift
     budget: Budget = field(default_factory=Budget)  # replay and time limits of the searches
+    null: NullModel | None = None
 
     def __post_init__(self) -> None:
         self.budget.spent = lambda: self.replays.runs
 
     @classmethod
-    def build(cls, real: EpisodeData, replays: CachedReplays, scales_of: type[Scales] = Scales) -> Context:
+    def build(cls, real: EpisodeData, replays: CachedReplays, budget: Budget | None = None,
+              scales_of: type[Scales] = Scales) -> Context:
+        """The context of ``real`` against the twin ``replays`` runs, with no null yet; ``budget`` (default: the
+        default limits) counts the replays of ``replays``."""
         nominal = replays.get(())
         names = tuple(s for s in COMPARED if s in real.signals and s in nominal.signals
                       and np.all(np.isfinite(nominal.signals[s])))
         spread = signal_spread({s: nominal.signals[s] for s in names})
         twin = replays.runner.twin
         scales = scales_of.of(twin.loader, twin.soil, spread)
-        return cls(real, replays, names, real.matrix(names), nominal, scales)
+        return cls(real, replays, names, real.matrix(names), nominal, scales, budget or Budget())
+
+    def with_null(self, null: NullModel) -> Context:
+        """This context judged under ``null`` (same replays, same budget)."""
+        return dataclasses.replace(self, null=null)
+
+    @property
+    def noise(self) -> NoiseModel | None:
+        return None if self.null is None else self.null.noise
+
+    @property
+    def calibration(self) -> NullCalibration | None:
+        return None if self.null is None else self.null.calibration
+
+    @property
+    def null_cost(self) -> float:
+        """Expected objective when nothing (more) differs (0 before the null is estimated)."""
+        return 0.0 if self.null is None else self.null.cost
+
+    @property
+    def drift_calibration(self) -> NullCalibration | None:
+        """The null under the whitening with drift."""
+        return None if self.null is None else self.null.drift_calibration
 
     @property
     def time(self) -> np.ndarray:
@@ -81,9 +122,9 @@ class Context:
 
     def z(self, twin_matrix: np.ndarray, real_matrix: np.ndarray | None = None) -> np.ndarray:
         """Whitened residual real − twin; samples after a twin blow-up get a large value."""
-        assert self.noise is not None, "noise model not estimated yet"
+        assert self.null is not None, "noise model not estimated yet"
         real = self.real_matrix if real_matrix is None else real_matrix
-        z = self.noise.whiten(real - twin_matrix)
+        z = self.null.noise.whiten(real - twin_matrix)
         return np.where(np.isfinite(z), z, DIVERGED)
 
     def cost(self, twin_matrix: np.ndarray) -> float:

@@ -21,20 +21,11 @@ from discrepancy.data.episode import EpisodeData, from_recording, read_log
 from discrepancy.effects import UNEXPLAINED, Effect
 from discrepancy.search.budget import REPLAYS, SECONDS, Budget
 from discrepancy.search.fit import GN_ITERATIONS, Comparison, FitResult, compare, fit
-from discrepancy.search.identify import (
-    FINALISTS,
-    MAX_EFFECTS,
-    POLISH,
-    Identification,
-    IdentifyOptions,
-    identify,
-    strong,
-)
-from discrepancy.search.screen import REFINE
+from discrepancy.search.identify import Identification, IdentifyOptions, identify, strong
 from discrepancy.search.separate import Alternative, alternatives
 from discrepancy.stats.locate import ALPHA, Located, LocateResult, locate
 from discrepancy.stats.noise import NoiseModel, NullSpec
-from discrepancy.stats.null import calibrate, use
+from discrepancy.stats.null import calibrate
 from discrepancy.stats.redundancy import Check, check_all, fault_admissible, sensor_suspects
 from discrepancy.twin.align import Alignment, align
 from discrepancy.twin.runner import CachedReplays, Runner, make_runner
@@ -48,19 +39,15 @@ Source = EpisodeData | Recording | str | Path
 
 @dataclass(frozen=True)
 class DiagnoseOptions:
-    """Knobs of a diagnosis (defaults are what the benchmark uses)."""
+    """Knobs of a diagnosis, grouped by the step that reads them (defaults are what the benchmark uses)."""
 
     workers: int = 1  # local worker processes for the replays (1: in this process)
     executor: str | Executor | None = None  # or replays through this executor ("ray", a RayExecutor, …)
-    null: NullSpec = field(default_factory=NullSpec)
-    max_effects: int = MAX_EFFECTS
-    alpha: float = ALPHA
-    seed: int = 0
-    refine: int = REFINE
-    candidates: tuple[str, ...] | None = None  # restrict the catalogue (effect names or labels); None: all
-    polish: int = POLISH  # Gauss–Newton steps before judging each round
-    gn_iterations: int = GN_ITERATIONS  # Gauss–Newton steps of the final fit
-    finalists: int = FINALISTS  # rivals refitted before a round's winner is chosen
+    null: NullSpec = field(default_factory=NullSpec)  # null: at first, and around every corrected twin after
+    alpha: float = ALPHA  # locate: false-discovery rate of the located windows
+    identify: IdentifyOptions = field(default_factory=IdentifyOptions)  # identify: the selection's search
+    gn_iterations: int = GN_ITERATIONS  # fit: Gauss–Newton steps of the final fit
+    seed: int = 0  # fit: seed of the intervals' moving-block bootstrap
     budget: int = REPLAYS  # twin replays after which the searches stop (deterministic)
     time_budget: float = SECONDS  # seconds from the start after which the searches stop (safety net)
     #: a log without seed whose twin leaves windows located: refit its start on the whole log and say how many stay
@@ -256,8 +243,7 @@ def _run(train: EpisodeData, held_twins: list[tuple[EpisodeData, Runner]], spec:
     held = [ep for ep, _ in held_twins]
     replays = CachedReplays(runner, train.commands, train.time)
     with timer.step("replay"):
-        ctx = Context.build(train, replays)
-        ctx.budget = Budget(opts.budget, opts.time_budget, lambda: replays.runs, timer.start)
+        ctx = Context.build(train, replays, Budget(opts.budget, opts.time_budget, start=timer.start))
         if ctx.nominal.error:
             raise RecordingError(f"{train.name}: the twin diverged replaying the commands ({ctx.nominal.error})")
         if not ctx.names:
@@ -265,7 +251,7 @@ def _run(train: EpisodeData, held_twins: list[tuple[EpisodeData, Runner]], spec:
         twin2 = route2.run(train.commands)
     with timer.step("null"):
         null = calibrate(ctx, opts.null)
-        use(ctx, null)
+        ctx = ctx.with_null(null)
     with timer.step("locate"):
         found = locate(ctx.z(ctx.matrix(ctx.nominal)), ctx.time, ctx.windows(), ctx.names, null.calibration,
                        opts.alpha)
@@ -280,9 +266,9 @@ def _run(train: EpisodeData, held_twins: list[tuple[EpisodeData, Runner]], spec:
         def guard(e: Effect) -> bool:
             return fault_admissible(e, checks, train.signals, twin2.signals, null.channel_noise, train.time)
 
-        ident = identify(ctx, found, suspects, IdentifyOptions(opts.max_effects, opts.refine, opts.candidates,
-                                                               opts.null, opts.polish, opts.finalists,
-                                                               opts.budget, opts.time_budget), guard)
+        ident = identify(ctx, found, suspects, opts.identify, opts.null, guard)
+        if ident.null is not None:  # judged since under the null of the effects it accepted
+            ctx = ctx.with_null(ident.null)
     named = ident.effects
     pile = check is not None and check.cleared  # the pile explains it all: nothing is named (see StartCheck)
     if pile:
@@ -292,7 +278,7 @@ def _run(train: EpisodeData, held_twins: list[tuple[EpisodeData, Runner]], spec:
     with timer.step("fit"):  # after a cut by the clock, one Gauss–Newton step only
         iterations = min(opts.gn_iterations, 1) if ctx.budget.cut == "time" else opts.gn_iterations
         if named:  # the noise of what is left once the named effects are modelled, not of the raw residual
-            use(ctx, calibrate(ctx, opts.null, named))
+            ctx = ctx.with_null(calibrate(ctx, opts.null, named))
         result = fit(ctx, named, opts.seed, iterations) if named else None
         effects = result.effects if result else []
     with timer.step("compare"):
@@ -318,7 +304,7 @@ def _start_check(train: EpisodeData, spec: TwinSpec, runner: Runner, estimate: S
                           train.commands, train.time)
     ctx = Context.build(train, other)
     null = calibrate(ctx, opts.null)
-    use(ctx, null)
+    ctx = ctx.with_null(null)
     found = locate(ctx.z(ctx.matrix(ctx.nominal)), ctx.time, ctx.windows(), ctx.names, null.calibration, opts.alpha)
     return StartCheck(dict(refit.options), before, len(found.located), refit.replays + other.runs + 1,
                       pile_shift(runner, refit.options), strong_rest=bool(found.located) and strong(found))

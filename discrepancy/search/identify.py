@@ -19,15 +19,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from discrepancy.context import DIVERGED, Context, huber
+from discrepancy.context import DIVERGED, Context, NullModel, huber
 from discrepancy.effects import Effect
-from discrepancy.search.budget import REPLAYS, ROUND_RESERVE, SECONDS
+from discrepancy.search.budget import ROUND_RESERVE
 from discrepancy.search.fit import DENSE_FINE, DENSE_SCAN, polish, scan
 from discrepancy.search.screen import REFINE, Trial, physics_trials
 from discrepancy.search.sensors import sensor_trials
 from discrepancy.stats.locate import ALPHA, LocateResult, locate
 from discrepancy.stats.noise import NullSpec
-from discrepancy.stats.null import NullModel, calibrate, use
+from discrepancy.stats.null import calibrate
 
 Guard = Callable[[Effect], bool]  # may this sensor fault explain a channel an intact identity guards?
 FINALISTS = 2  # best trials scanned and polished (with the effects accepted so far) before the winner is chosen
@@ -56,19 +56,15 @@ CREDIBLE = 0.85
 class IdentifyOptions:
     """Knobs of the selection: at most ``max_effects`` effects, ``refine`` candidates refined per round, the
     catalogue restricted to ``candidates`` (effect names or labels such as ``coulomb_friction[boom_hinge]``;
-    None: all), the null spec of the re-calibration after each round, Gauss–Newton steps before judging, and
-    how many close rivals are refitted before the winner of a round is chosen. The searches stop once ``budget``
-    twin replays are spent or ``time_budget`` seconds have passed since the diagnosis started
-    (:mod:`discrepancy.search.budget`); what is left then is reported as ``unexplained``."""
+    None: all), Gauss–Newton steps before judging, and how many close rivals are refitted before the winner of a
+    round is chosen. The searches stop once the context's :class:`~discrepancy.search.budget.Budget` is spent
+    (replays or seconds since the diagnosis started); what is left then is reported as ``unexplained``."""
 
     max_effects: int = MAX_EFFECTS
     refine: int = REFINE
     candidates: tuple[str, ...] | None = None
-    null: NullSpec | None = None
     polish: int = POLISH
     finalists: int = FINALISTS
-    budget: int = REPLAYS
-    time_budget: float = SECONDS
 
     def allows(self, name: str, target: str | None) -> bool:
         label = f"{name}[{target}]" if target else name
@@ -100,6 +96,9 @@ class Identification:
     final_cost: float = 0.0
     #: drifting channels whose located excess their sensors' drift explains (nothing named, not unexplained)
     drift: tuple[str, ...] = ()
+    #: the null adopted last: that of the twin with the effects accepted last, which judged what followed (None:
+    #: nothing was accepted; kept when the closest entries are dropped for ``unexplained``)
+    null: NullModel | None = None
 
 
 def _sensor_trials(ctx: Context, base: list[Effect], signals: set[str], suspects: set[str], opts: IdentifyOptions,
@@ -150,12 +149,12 @@ def _finalists(trials: list[Trial], n: int = FINALISTS) -> list[Trial]:
 
 
 def identify(ctx: Context, located: LocateResult, suspects: set[str], opts: IdentifyOptions | None = None,
-             guard: Guard | None = None) -> Identification:
+             null: NullSpec | None = None, guard: Guard | None = None) -> Identification:
     """Select effects until the residual is explained (see module docstring). Sensor faults are tried on the
     located ``suspects``, and on other located channels where ``guard(fault)`` admits them (the redundancy's
-    :func:`~discrepancy.stats.redundancy.fault_admissible`)."""
+    :func:`~discrepancy.stats.redundancy.fault_admissible`). ``null``: the spec of the null re-estimated around
+    each trial (the diagnosis's own; None: the default)."""
     opts = opts or IdentifyOptions()
-    ctx.budget.replays, ctx.budget.seconds = opts.budget, opts.time_budget
     out = Identification()
     out.start_cost = out.final_cost = ctx.cost(ctx.simulate([]))
     if not located.located:
@@ -174,9 +173,10 @@ def identify(ctx: Context, located: LocateResult, suspects: set[str], opts: Iden
         if out.effects:  # a near miss of the accepted effects must not pass for a further effect
             refit, refit_cost = scan(ctx, out.effects, 0, (DENSE_SCAN, DENSE_FINE))
             if refit_cost < cost - MIN_GAIN:
-                after, judge, model = _judge(ctx, [], refit, opts.null)
-                out.effects, out.after, current = refit, after, after
-                cost = out.final_cost = _adopt(ctx, model, refit)
+                after, judge, model = _judge(ctx, [], refit, null)
+                out.effects, out.after, current, out.null = refit, after, after, model
+                ctx = ctx.with_null(model)
+                cost = out.final_cost = _adopted_cost(ctx, refit)
                 if not after.located:
                     return out
                 tolerable = judge.removed >= EXPLAINED and (len(after.located) <= _tolerated(located)
@@ -188,12 +188,13 @@ def identify(ctx: Context, located: LocateResult, suspects: set[str], opts: Iden
         if cost - rnd.winner.cost < MIN_GAIN:
             break
         trial = rnd.model
-        after, judge, model = _judge(ctx, out.effects, trial, opts.null)
+        after, judge, model = _judge(ctx, out.effects, trial, null)
         rnd.gain_fraction = judge.gain
         if not _accepts(judge, bool(out.effects), len(current.located), len(after.located)):
             break
-        out.effects, out.after = trial, after
-        cost = out.final_cost = _adopt(ctx, model, trial)
+        out.effects, out.after, out.null = trial, after, model
+        ctx = ctx.with_null(model)
+        cost = out.final_cost = _adopted_cost(ctx, trial)
         current = after
         if not after.located:
             return out
@@ -273,10 +274,10 @@ def _judge(ctx: Context, base: list[Effect], trial: list[Effect], null: NullSpec
                             (start - after) / max(start - floor, MIN_GAIN)), model
 
 
-def _adopt(ctx: Context, model: NullModel, effects: list[Effect]) -> float:
-    """Judge what follows against the noise left once ``effects`` are modelled (the raw residual's noise estimate
-    carries part of the discrepancy and would blur the next scans); the objective of ``effects`` under it."""
-    use(ctx, model)
+def _adopted_cost(ctx: Context, effects: list[Effect]) -> float:
+    """The objective of ``effects`` under ``ctx``'s null, the one of the twin with ``effects`` modelled: what
+    follows is judged against it (the raw residual's noise estimate carries part of the discrepancy and would
+    blur the next scans)."""
     return ctx.cost(ctx.simulate(effects))
 
 

@@ -20,11 +20,10 @@ fraction of a step off.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 
-from discrepancy.context import Context, huber
+from discrepancy.context import Context, NullModel, huber
 from discrepancy.data.fieldlog import command_timing, filter_sensitivity, jittered_commands
 from discrepancy.effects import Effect
 from discrepancy.stats.locate import NullCalibration, Window, window_stats
@@ -39,18 +38,6 @@ PARAM_JITTER = 0.02  # relative perturbation of fitted parameters in the null ru
 FILTER_SPREAD = 0.15
 #: ... per effect where it should differ (none at present).
 JITTER: dict[str, float] = {}
-
-
-@dataclass
-class NullModel:
-    """Noise model, window-statistic calibration and expected objective when nothing (more) differs."""
-
-    noise: NoiseModel
-    calibration: NullCalibration
-    cost: float
-    channel_noise: dict[str, float]
-    #: the window statistics' null under the whitening with drift (:meth:`NoiseModel.whiten_drift`)
-    drift_calibration: NullCalibration | None = None
 
 
 def _jittered(effects: Sequence[Effect], rng: np.random.Generator) -> list[Effect]:
@@ -173,9 +160,3 @@ def _channel_noise(ctx: Context, twin: dict[str, np.ndarray]) -> dict[str, float
             r = (values - twin[name])[:, None]
             out[name] = sensor_noise(r, np.array([max(float(np.std(values)), 1e-12)]))[0].sd
     return out
-
-
-def use(ctx: Context, null: NullModel) -> None:
-    """Make ``null`` the context's noise model and calibration."""
-    ctx.noise, ctx.calibration, ctx.null_cost = null.noise, null.calibration, null.cost
-    ctx.drift_calibration = null.drift_calibration

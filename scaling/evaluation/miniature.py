@@ -36,7 +36,7 @@ from scaletwin_envs.runtime import qpos_for_pose, set_payload
 from scaletwin_envs.signals import SignalReader
 from scaletwin_envs.specs import LoaderSpec, make_loader
 from scaling.data.delta_dataset import DeltaDataset
-from scaling.models import DeepEnsemble, DeltaModel, GRUModel
+from scaling.models import DeepEnsemble, DeltaModel, DirectPi, GRUModel
 from scaling.models.fitted import STATIC_STEPS, model_groups
 
 #: Carry pose (rad): boom raised 0.35 rad above the dig pose, bucket racked back to a pitch of 0.6 rad (the
@@ -172,8 +172,6 @@ def validate_mini(models: Mapping[str, DeltaModel], reference: pd.Series, rows: 
                             reference={k: _jsonable(v) for k, v in reference.items()})
     fitted = dict(models)
     if DIRECT_PI not in fitted and fitted:
-        from scaling.models import DirectPi
-
         first = next(iter(fitted.values()))
         direct = DirectPi()
         direct.transform_, direct.groups_ = first.transform_, first.groups_

@@ -7,14 +7,15 @@ from collections.abc import Callable, Sequence
 
 import pytest
 
-from discrepancy import DiagnoseOptions, Diagnosis, Effect, NullSpec, Scales, TwinSpec, diagnose
+from discrepancy import DiagnoseOptions, Diagnosis, Effect, IdentifyOptions, NullSpec, Scales, TwinSpec, diagnose
 from discrepancy.bench.synth import Synthetic, record
 from discrepancy.data.episode import signal_spread
 from scaletwin_envs.specs import make_loader, make_soil
 
 #: Fewer null runs, two refined candidates, one Gauss–Newton step while naming and none in the final fit: the tests
 #: stay fast, the pipeline is the same.
-FAST = DiagnoseOptions(null=NullSpec(runs=3), refine=2, polish=1, gn_iterations=0, finalists=1)
+FAST = DiagnoseOptions(null=NullSpec(runs=3), identify=IdentifyOptions(refine=2, polish=1, finalists=1),
+                       gn_iterations=0)
 
 
 @pytest.fixture(scope="session")
@@ -49,7 +50,8 @@ def diagnosed(twin: TwinSpec, planted) -> Callable[..., Diagnosis]:
             ) -> Diagnosis:
         key = (tuple(effects), candidates, gn_iterations)
         if key not in cache:
-            opts = dataclasses.replace(FAST, candidates=candidates, gn_iterations=gn_iterations)
+            opts = dataclasses.replace(FAST, identify=dataclasses.replace(FAST.identify, candidates=candidates),
+                                       gn_iterations=gn_iterations)
             cache[key] = diagnose(planted(effects).noisy, twin, options=opts)
         return cache[key]
 

@@ -7,11 +7,14 @@ import dataclasses
 
 import pytest
 
-from discrepancy import Effect, diagnose
+from discrepancy import Effect, NullSpec, diagnose
+from discrepancy.context import Context
 from discrepancy.effects import UNEXPLAINED
 from discrepancy.report.document import markdown, to_json
 from discrepancy.report.schema import validate
 from discrepancy.search.budget import Budget
+from discrepancy.stats.null import calibrate
+from discrepancy.twin.runner import CachedReplays, make_runner
 
 from .conftest import FAST
 
@@ -67,3 +70,26 @@ def test_generous_budget_is_not_reported_as_a_cut(diagnosed) -> None:
 def test_bad_budget_is_rejected(planted, twin) -> None:
     with pytest.raises(ValueError, match="budget"):
         diagnose(planted([]).noisy, twin, options=dataclasses.replace(FAST, budget=0))
+
+
+def test_one_budget_counts_every_context_of_a_diagnosis(planted, twin) -> None:
+    """A context is immutable: a re-estimated null gives a new context on the same replays and the same budget,
+    which counts every replay made through either (the pipeline owns the budget; no step replaces it)."""
+    real = planted([]).noisy
+    runner = make_runner(twin, 1)
+    try:
+        budget = Budget(replays=50, seconds=1e9)
+        ctx = Context.build(real, CachedReplays(runner, real.commands, real.time), budget)
+        assert ctx.null is None and ctx.noise is None and ctx.null_cost == 0.0
+        with pytest.raises(dataclasses.FrozenInstanceError):
+            ctx.names = ()  # type: ignore[misc]
+        judged = ctx.with_null(calibrate(ctx, NullSpec(runs=2)))
+        assert ctx.null is None  # the context it came from is untouched
+        assert judged.budget is budget and judged.replays is ctx.replays and judged.noise is not None
+        before = budget.spent()
+        assert before == ctx.replays.runs >= 3  # the nominal replay and the null's runs
+        judged.simulate([Effect.make("sensor_bias", "F31", {"bias": 1.0})])
+        assert budget.spent() == ctx.replays.runs  # counted once, through the shared replays
+        assert budget.left() == 50 - budget.spent()
+    finally:
+        runner.close()

@@ -13,7 +13,7 @@ import pytest
 from discrepancy import Effect, NullSpec, Scales, TwinSpec
 from discrepancy.context import Context
 from discrepancy.search.fit import fit
-from discrepancy.stats.null import calibrate, use
+from discrepancy.stats.null import calibrate
 from discrepancy.twin.runner import CachedReplays, make_runner
 
 #: effect → (target, planted Π, start Π): a physical effect (payload mass, re-simulated) and a sensor model.
@@ -35,7 +35,8 @@ def test_gauss_newton_pulls_a_wrong_start_back_to_the_planted_value(name: str, t
     runner = make_runner(twin, 1)
     try:
         ctx = Context.build(real, CachedReplays(runner, real.commands, real.time))
-        use(ctx, calibrate(ctx, NullSpec(runs=3), [start]))  # as the pipeline: the noise left by the named effect
+        # as the pipeline: judged under the noise left by the named effect
+        ctx = ctx.with_null(calibrate(ctx, NullSpec(runs=3), [start]))
         cost_at_start = ctx.cost(ctx.simulate([start]))
         result = fit(ctx, [start], seed=0, iterations=2)
     finally:

@@ -45,6 +45,7 @@ from scaling.evaluation.conformal import IntervalRisk, RowInterval, RowRisk
 from scaling.evaluation.metrics import at_rest
 from scaling.models import DeltaModel
 from scaling.models.fitted import STATIC_STEPS, model_groups
+from zoo.loading import load
 from zoo.serving.inputs import InputError, Rows, split_header, to_matrix
 from zoo.serving.kernels import (
     CHUNK,
@@ -662,6 +663,4 @@ class ScalingModel:
         return f"ScalingModel({self.name!r}, {self.model.name}, interval={self.interval_method})"
 
     def __reduce__(self) -> tuple[Any, tuple[str]]:
-        from zoo.loading import load
-
         return load, (self.ref,)
