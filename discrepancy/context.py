@@ -85,10 +85,6 @@ class Context:
         return None if self.null is None else self.null.noise
 
     @property
-    def calibration(self) -> NullCalibration | None:
-        return None if self.null is None else self.null.calibration
-
-    @property
     def null_cost(self) -> float:
         """Expected objective when nothing (more) differs (0 before the null is estimated)."""
         return 0.0 if self.null is None else self.null.cost

@@ -173,10 +173,8 @@ def identify(ctx: Context, located: LocateResult, suspects: set[str], opts: Iden
         if out.effects:  # a near miss of the accepted effects must not pass for a further effect
             refit, refit_cost = scan(ctx, out.effects, 0, (DENSE_SCAN, DENSE_FINE))
             if refit_cost < cost - MIN_GAIN:
-                after, judge, model = _judge(ctx, [], refit, null)
-                out.effects, out.after, current, out.null = refit, after, after, model
-                ctx = ctx.with_null(model)
-                cost = out.final_cost = _adopted_cost(ctx, refit)
+                after, judge, ctx, cost = _judge(ctx, [], refit, null)
+                out.effects, out.after, current, out.null, out.final_cost = refit, after, after, ctx.null, cost
                 if not after.located:
                     return out
                 tolerable = judge.removed >= EXPLAINED and (len(after.located) <= _tolerated(located)
@@ -188,13 +186,12 @@ def identify(ctx: Context, located: LocateResult, suspects: set[str], opts: Iden
         if cost - rnd.winner.cost < MIN_GAIN:
             break
         trial = rnd.model
-        after, judge, model = _judge(ctx, out.effects, trial, null)
+        after, judge, judged, trial_cost = _judge(ctx, out.effects, trial, null)
         rnd.gain_fraction = judge.gain
         if not _accepts(judge, bool(out.effects), len(current.located), len(after.located)):
             break
-        out.effects, out.after, out.null = trial, after, model
-        ctx = ctx.with_null(model)
-        cost = out.final_cost = _adopted_cost(ctx, trial)
+        ctx, cost = judged, trial_cost
+        out.effects, out.after, out.null, out.final_cost = trial, after, ctx.null, cost
         current = after
         if not after.located:
             return out
@@ -257,28 +254,19 @@ class _Judgement:
 
 
 def _judge(ctx: Context, base: list[Effect], trial: list[Effect], null: NullSpec | None
-           ) -> tuple[LocateResult, _Judgement, NullModel]:
+           ) -> tuple[LocateResult, _Judgement, Context, float]:
     """Locate what is left after ``trial``, against the null of that corrected twin (its own noise and
-    fragility), and measure the gains on that scale."""
+    fragility), and measure the gains on that scale. Returns what is left located, the gains, ``ctx`` judged
+    under that null (what follows is judged against it if ``trial`` is accepted: the raw residual's noise estimate
+    carries part of the discrepancy and would blur the next scans) and ``trial``'s objective under it."""
     model = calibrate(ctx, null, trial)
-
-    def cost(effects: list[Effect]) -> float:
-        z = model.noise.whiten(ctx.real_matrix - ctx.simulate(effects))
-        return float(np.sum(huber(np.where(np.isfinite(z), z, DIVERGED))))
-
-    start, before, after = cost([]), cost(base), cost(trial)
-    z = model.noise.whiten(ctx.real_matrix - ctx.simulate(trial))
-    left = locate(np.where(np.isfinite(z), z, DIVERGED), ctx.time, ctx.windows(), ctx.names, model.calibration)
+    judged = ctx.with_null(model)
+    z = judged.z(judged.simulate(trial))
+    start, before, after = judged.cost(judged.simulate([])), judged.cost(judged.simulate(base)), float(np.sum(huber(z)))
+    left = locate(z, ctx.time, ctx.windows(), ctx.names, model.calibration)
     floor = min(model.cost, after)  # the null's objective, or the fit's if it goes below (then it explains all)
     return left, _Judgement((before - after) / max(before - floor, MIN_GAIN),
-                            (start - after) / max(start - floor, MIN_GAIN)), model
-
-
-def _adopted_cost(ctx: Context, effects: list[Effect]) -> float:
-    """The objective of ``effects`` under ``ctx``'s null, the one of the twin with ``effects`` modelled: what
-    follows is judged against it (the raw residual's noise estimate carries part of the discrepancy and would
-    blur the next scans)."""
-    return ctx.cost(ctx.simulate(effects))
+                            (start - after) / max(start - floor, MIN_GAIN)), judged, after
 
 
 def _tolerated(located: LocateResult) -> int:
