@@ -12,9 +12,9 @@ log's sampling leaves uncertain (:func:`~discrepancy.data.fieldlog.jittered_comm
 whose sensor filters were estimated from the log (a low-passed log) has each run's filters moved within what
 the estimate leaves open (:func:`filter_deviations`): a channel's time constant a tenth off leaves a residual at
 every quick change of that channel (a valve reversal), which is not a discrepancy. A log whose time offset
-was estimated but not applied (``TwinSpec.offset_spread``) has each run read that much earlier or later
-(:func:`offset_deviations`): the samples at a valve's switch move by most of the switch where the log is a
-fraction of a step off.
+was estimated but not applied, or applied to within its standard error (``TwinSpec.offset_spread``), has each run
+read that much earlier or later (:func:`offset_deviations`): the samples at a valve's switch move by most of the
+switch where the log is a fraction of a step off.
 """
 
 from __future__ import annotations

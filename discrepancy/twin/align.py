@@ -6,20 +6,25 @@ an :class:`Alignment` saying what was estimated (reported in the diagnosis). Eac
 is worth it (``estimate_offset``'s and ``estimate_sensor_tau``'s own thresholds; for a log without seed, the
 joint fit's, see ``estimate_start``); an offset found against the twin is applied only when two of the machine's
 circuits (lift, tilt, drive) show it alike (:func:`~discrepancy.data.fieldlog.circuits_agree`): a dead time in one
-actuator, which the catalogue names, moves one circuit only.
+actuator, which the catalogue names, moves one circuit only. An offset applied is known to within its standard
+error, which the null carries (``TwinSpec.offset_spread``); a log whose signals lead its commands is compared only
+on the rows whose commands it holds (:func:`_compared_rows`).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from discrepancy.data.channels import RecordingError
 from discrepancy.data.episode import EpisodeData, signal_spread
 from discrepancy.data.fieldlog import (
     MIN_OFFSET_STEPS,
+    TAU_MAX,
     OffsetEstimate,
     circuit_offsets,
     circuits_agree,
@@ -39,6 +44,8 @@ TOLERANCE = 0.25  # control steps: a channel's own filter time constant this clo
 #: from it: a channel that barely moves on the rows it is fitted on gets any time constant (benchmark seed 24 case
 #: 0, a low-passed null: ``tilt_extension`` 1 s, the search's limit, for a true 0.08 s, and 5 windows located)
 SIGNIFICANT = 3.0
+#: Fewest rows a log must keep with known commands (a dig's approach at the control step is about 10).
+MIN_COMPARED = 10
 
 
 @dataclass(frozen=True)
@@ -77,6 +84,28 @@ def _offset(ep: EpisodeData, twin: dict, notes: list[str], scale: dict[str, floa
     return offset, False
 
 
+def _compared_rows(ep: EpisodeData, spec: TwinSpec, notes: list[str]) -> tuple[EpisodeData, TwinSpec]:
+    """A log whose signals lead its commands (``spec.time_offset`` < 0) reads, on its last rows, the machine under
+    commands logged after them: those rows are not compared (their commands become the twin's
+    ``command_tail``); any other log is returned as it is.
+
+    Raises:
+        RecordingError: the offset leaves fewer than :data:`MIN_COMPARED` rows.
+    """
+    lead = math.ceil(-spec.time_offset / ep.dt - 1e-9) if spec.time_offset < 0 else 0
+    if lead == 0:
+        return ep, spec
+    keep = len(ep) - lead
+    if keep < MIN_COMPARED:
+        raise RecordingError(f"{ep.name}: its signals lead its commands by {-spec.time_offset:.3g} s, which leaves "
+                             f"{max(keep, 0)} of its {len(ep)} rows with known commands (at least {MIN_COMPARED} "
+                             "needed)")
+    notes.append(f"the last {lead} rows read the machine under commands logged after them (the signals lead by "
+                 f"{-spec.time_offset:.3g} s): not compared")
+    tail = tuple((float(a), float(b), float(c)) for a, b, c in ep.commands[keep:])
+    return ep.head(keep), dataclasses.replace(spec, command_tail=tail)
+
+
 def _head(signals: dict[str, np.ndarray], rows: int) -> dict[str, np.ndarray]:
     return {c: v[:rows] for c, v in signals.items()}
 
@@ -86,7 +115,10 @@ def _channel_taus(ep: EpisodeData, spec: TwinSpec, runner: Runner, rows: int, co
     """Each channel's own sensor time constant (s) against the twin ``spec`` without its filters (``plain``, that
     replay where the caller has it; else one replay) over the first ``rows`` rows, where it differs from the common
     time constant ``common`` (s, the one applied to every other channel) by at least :data:`TOLERANCE` control steps
-    and :data:`SIGNIFICANT` standard errors (:func:`estimate_channel_taus`)."""
+    and :data:`SIGNIFICANT` standard errors (:func:`estimate_channel_taus`), and lies inside the search: one at its
+    bound (``TAU_MAX``) is a residual that keeps falling however much the channel is smoothed, which a misfit of
+    the start does and a sensor filter does not (benchmark seed 86 case 39: ``F21_z`` and ``F31_z`` at 1 s for a
+    true 0.21 and 0.26 s, ``F21_z`` then located in the penetration of a null)."""
     nominal = plain or runner.with_twin(dataclasses.replace(spec, sensor_tau=0.0, sensor_taus=())).run_many(
         ep.commands, [Plan()])[0]
     if nominal.error:
@@ -94,8 +126,9 @@ def _channel_taus(ep: EpisodeData, spec: TwinSpec, runner: Runner, rows: int, co
     rows = min(rows, len(ep))
     real, twin = _head(ep.signals, rows), _head(nominal.signals, rows)
     taus = estimate_channel_taus(real, twin, ep.dt)
-    return tuple(sorted((c, t) for c, t in taus.items() if abs(t - common) >= TOLERANCE * ep.dt and (
-        t <= 0.0 or abs(t - common) >= SIGNIFICANT * tau_standard_error(real[c], twin[c], ep.dt, t))))
+    return tuple(sorted((c, t) for c, t in taus.items() if abs(t - common) >= TOLERANCE * ep.dt and t < TAU_MAX
+                        and (t <= 0.0 or abs(t - common) >= SIGNIFICANT * tau_standard_error(real[c], twin[c],
+                                                                                             ep.dt, t))))
 
 
 def align(ep: EpisodeData, spec: TwinSpec, runner: Runner) -> tuple[EpisodeData, TwinSpec, Alignment]:
@@ -153,8 +186,11 @@ def align(ep: EpisodeData, spec: TwinSpec, runner: Runner) -> tuple[EpisodeData,
         # samples at its valve's switches, replayed 0.06 s off the log, read as a discrepancy)
         spec = dataclasses.replace(spec, offset_spread=abs(rest.offset))
     if applied:
-        notes.append(f"time offset between the log's signals and its commands: {total:.3g} s, applied to the twin "
-                     "(read at the log's times)")
+        se = offset.standard_error if offset is not None else float("nan")
+        if math.isfinite(se):  # the offset applied is known to within its standard error, which the null carries
+            spec = dataclasses.replace(spec, offset_spread=se)
+        notes.append(f"time offset between the log's signals and its commands: {total:.3g} s (standard error "
+                     f"{se:.2g} s), applied to the twin (read at the log's times)")
     if tau > 0:
         spec = dataclasses.replace(spec, sensor_tau=tau,
                                    sensor_taus=_channel_taus(ep, spec, runner, trusted, tau, plain))
@@ -168,4 +204,5 @@ def align(ep: EpisodeData, spec: TwinSpec, runner: Runner) -> tuple[EpisodeData,
             ep.input_report, sensor_tau=tau, time_offset=float(total) if applied else ep.input_report.time_offset))
     if offset is not None and applied:
         offset = dataclasses.replace(offset, offset=total)
+    ep, spec = _compared_rows(ep, spec, notes)
     return ep, spec, Alignment(start, tau, offset if offset is not None else rest, applied, tuple(notes))

@@ -45,8 +45,12 @@ class TwinSpec:
     delayed`; the twin read at the log's times, rather than the log shifted: a shift of a sampled step leaves an
     interpolation error the twin's own reading does not); ``start_draws``: starts as uncertain as
     the estimated ``start`` (reset options each), which the null's runs start from (:meth:`null_starts`);
-    ``offset_spread``: s, the standard deviation of a time offset the log leaves open (estimated but not applied),
-    which the null's runs carry (:func:`~discrepancy.stats.null.offset_deviations`).
+    ``offset_spread``: s, the standard deviation of a time offset the log leaves open (one estimated but not
+    applied; one applied, its standard error), which the null's runs carry (:func:`~discrepancy.stats.null.
+    offset_deviations`); ``command_tail``: commands ``[lift, tilt, drive]`` the log carries after the last row
+    compared, replayed after the log's own (a log whose signals lead its commands reads, on its last rows, the
+    machine under commands logged later: those rows are not compared, :func:`~discrepancy.twin.align.align`, but
+    their commands drive the rows that are).
     """
 
     loader: LoaderSpec
@@ -59,6 +63,7 @@ class TwinSpec:
     start_draws: tuple[tuple[tuple[str, float], ...], ...] = ()
     time_offset: float = 0.0
     offset_spread: float = 0.0
+    command_tail: tuple[tuple[float, float, float], ...] = ()
 
     def channel_taus(self, names: Sequence[str]) -> np.ndarray:
         """The sensor-filter time constant (s) applied to each of ``names`` (0: not filtered)."""
@@ -120,14 +125,16 @@ class TwinSpec:
         taus = tuple(sorted((str(k), float(v)) for k, v in dict(doc.get("sensor_taus", {})).items()))
         draws = tuple(tuple(sorted((str(k), float(v)) for k, v in dict(d).items()))
                       for d in doc.get("start_draws", []))
+        tail = tuple((float(a), float(b), float(c)) for a, b, c in doc.get("command_tail", []))
         return cls(loader, soil, kwargs, int(seed), start, float(doc.get("sensor_tau", 0.0)), taus, draws,
-                   float(doc.get("time_offset", 0.0)), float(doc.get("offset_spread", 0.0)))
+                   float(doc.get("time_offset", 0.0)), float(doc.get("offset_spread", 0.0)), tail)
 
     def to_dict(self) -> dict[str, Any]:
         return {"scale": self.loader.to_dict(), "soil": self.soil.to_dict(), "env_kwargs": dict(self.env_kwargs),
                 "seed": self.seed, "start": dict(self.start), "sensor_tau": self.sensor_tau,
                 "sensor_taus": dict(self.sensor_taus), "start_draws": [dict(d) for d in self.start_draws],
-                "time_offset": self.time_offset, "offset_spread": self.offset_spread}
+                "time_offset": self.time_offset, "offset_spread": self.offset_spread,
+                "command_tail": [list(c) for c in self.command_tail]}
 
 
 def _scale(value: Any) -> float | str:
@@ -178,13 +185,16 @@ class Simulator:
         twin's); signals after sensor models, the twin's sensor filter and its time offset.
 
         A log whose signals lead its commands (``time_offset`` < 0) ends with rows read after its last command:
-        the replay runs on with the last command held over that span (a dig log ends in a steady motion), rather
-        than reading the twin's last sample as if the machine had stopped there."""
+        the replay runs on over that span with the twin's :attr:`~TwinSpec.command_tail` (the commands logged
+        after the rows compared), and past it with the last command held, rather than reading the twin's last
+        sample as if the machine had stopped there."""
         plan = plan or Plan()
         n = len(commands)
         lead = math.ceil(-self.twin.time_offset / self.control_dt - 1e-9) if self.twin.time_offset < 0 and n else 0
         if lead:
-            commands = np.concatenate((commands, np.repeat(np.asarray(commands)[-1:], lead, axis=0)))
+            tail = np.asarray(self.twin.command_tail[:lead], dtype=float).reshape(-1, 3)
+            held = np.repeat(tail[-1:] if len(tail) else np.asarray(commands)[-1:], lead - len(tail), axis=0)
+            commands = np.concatenate((commands, tail, held))
         env = self.env(plan.structure, two_routes)
         env.set_physics(plan.physics)
         options = dict(self.twin.start if start is None else start)

@@ -10,7 +10,7 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from discrepancy import TwinSpec
+from discrepancy import RecordingError, TwinSpec
 from discrepancy.bench.cases import make_case
 from discrepancy.bench.run import run_case
 from discrepancy.bench.synth import simulate
@@ -27,6 +27,7 @@ from discrepancy.data.fieldlog import (
 )
 from discrepancy.pipeline import DiagnoseOptions, StartCheck, diagnose
 from discrepancy.report.document import markdown, text_report, to_json
+from discrepancy.twin.align import _compared_rows
 from discrepancy.twin.plant import Plan
 from discrepancy.twin.runner import SerialRunner
 from discrepancy.twin.start import PILE, StartEstimate, estimate_start, pile_shift, refit_whole_log
@@ -272,3 +273,29 @@ def test_a_log_the_whole_log_start_explains_names_nothing() -> None:
     assert check is not None and check["located_before"] >= 1 and check["located_after"] == 0
     assert result["named"] == [] and not result["unexplained"]
     assert check["indistinguishable"] == ["unexplained"]
+
+
+def test_a_log_leading_its_commands_is_compared_only_where_its_commands_are_known() -> None:
+    """A log whose signals lead its commands by 0.17 s reads, on its last two rows, the machine under two commands
+    that come after its last row (the pull-back of a dig that the logger's window cut). Those rows are not
+    compared; their commands become the twin's ``command_tail``, so that the rows kept are, to the bit, the replay
+    of every logged command read early (two routes), not the replay with the last kept command held."""
+    twin = TwinSpec(make_loader("er12"), make_soil("sand"), {}, 2)
+    commands = simulate(twin, [], 2)[0].commands[:30].copy()
+    commands[28:] = [0.0, 0.0, -1.0]  # the last two rows: the lift stops and the machine reverses
+    truth = SerialRunner(twin).run_many(commands, [Plan()])[0]
+    early = dataclasses.replace(twin, time_offset=-0.17)
+    log = EpisodeData(DT * np.arange(1, 31), commands, {k: delayed(v, DT, -0.17)
+                                                        for k, v in truth.signals.items()}, truth.phases, None)
+    notes: list[str] = []
+    kept, spec = _compared_rows(log, early, notes)
+    assert len(kept) == 28 and np.array_equal(np.asarray(spec.command_tail), commands[28:])
+    assert "the last 2 rows" in notes[0]
+    replay = SerialRunner(spec).run_many(kept.commands, [Plan()])[0]
+    held = SerialRunner(early).run_many(kept.commands, [Plan()])[0]  # the last kept command held instead
+    for k in ("lift_extension", "travel_speed", "F21"):
+        np.testing.assert_allclose(replay.signals[k], log.signals[k][:28], rtol=0, atol=1e-9)
+    assert not np.allclose(held.signals["travel_speed"][-1:], log.signals["travel_speed"][27:28], rtol=0, atol=1e-3)
+    assert _compared_rows(log, twin, [])[0] is log  # no lead: nothing dropped
+    with pytest.raises(RecordingError, match="leaves 8 of its 30 rows"):
+        _compared_rows(log, dataclasses.replace(twin, time_offset=-2.15), [])
