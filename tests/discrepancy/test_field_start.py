@@ -123,6 +123,19 @@ def test_a_direction_flat_at_the_current_point_does_not_stop_the_fit() -> None:
     assert np.isfinite(est.misfit) and est.misfit < 0.1 * est.misfit_default
 
 
+
+@pytest.mark.slow  # ~60 s on 2 cores: a whole seedless start fit of a benchmark case, searched twice
+def test_a_pile_met_early_is_not_taken_for_a_log_leading_its_commands() -> None:
+    """Benchmark seed 88 case 5 (a null log without seed at λ 0.52, no offset, drifting sensors, no ``Pf_tilt``;
+    held out, run on fresh code): its pile lies 0.46 boom lengths out, nearer than the nominal 0.50, which from the
+    nominal start reads as a log that leads its commands; the joint fit stayed there (a 0.60 s lead, the pile at
+    0.53, misfit 1.30) and the diagnosis located 19 windows. Searched again without an offset, the start fits the
+    log better (the pile within 0.02 boom lengths, misfit under 0.5) and that one is kept."""
+    est = _case_start(make_case(5, 88))
+    assert est.offset == 0.0
+    assert dict(est.options)["pile_distance"] == pytest.approx(0.4616, abs=0.02)
+    assert est.misfit < 0.5
+
 #: Each motion channel's own sensor filter, s (the benchmark draws 0.05–0.3 s per channel; one logger's load pins,
 #: transducers and inclinometers need not share one).
 OWN_TAUS = {"lift_extension": 0.28, "tilt_extension": 0.06, "boom_angle": 0.22, "bucket_pitch": 0.09,
