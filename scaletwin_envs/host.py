@@ -47,14 +47,19 @@ def host_line() -> str:
 def git_revision(root: str | Path | None = None) -> str:
     """The commit checked out at ``root`` (default: this package's checkout), ``+dirty`` when tracked files have
     changes (read-only git calls). Outside git: the commit named by :data:`REVISION_ENV`, marked as such, or
-    ``unknown``."""
+    ``unknown``. Where :data:`REVISION_ENV` names another commit than git finds, the named one comes first and git's
+    beside it: a copy of a tree sent to another machine can carry an older repository with it (a lent machine
+    reported the session's first commit, ``+dirty``, for a tree three commits later)."""
     cwd = Path(root) if root is not None else Path(__file__).resolve().parents[1]
+    given = os.environ.get(REVISION_ENV, "").strip()
     try:
         rev = subprocess.run(["git", "rev-parse", "--short=12", "HEAD"], cwd=cwd, capture_output=True, text=True,
                              timeout=10, check=True).stdout.strip()
         dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=cwd,
                                capture_output=True, text=True, timeout=10, check=True).stdout.strip()
     except (OSError, subprocess.SubprocessError):
-        given = os.environ.get(REVISION_ENV, "").strip()
         return f"{given} (copied without git, {REVISION_ENV})" if given else "unknown"
-    return rev + ("+dirty" if dirty else "")
+    found = rev + ("+dirty" if dirty else "")
+    if given and not (rev.startswith(given) or given.startswith(rev)):
+        return f"{given} (named by {REVISION_ENV}; git here: {found})"
+    return found
