@@ -92,7 +92,7 @@ def _compared_rows(ep: EpisodeData, spec: TwinSpec, notes: list[str]) -> tuple[E
     Raises:
         RecordingError: the offset leaves fewer than :data:`MIN_COMPARED` rows.
     """
-    lead = math.ceil(-spec.time_offset / ep.dt - 1e-9) if spec.time_offset < 0 else 0
+    lead = spec.lead_steps(ep.dt)
     if lead == 0:
         return ep, spec
     keep = len(ep) - lead

@@ -65,6 +65,11 @@ class TwinSpec:
     offset_spread: float = 0.0
     command_tail: tuple[tuple[float, float, float], ...] = ()
 
+    def lead_steps(self, dt: float) -> int:
+        """Control steps (of ``dt`` s) by which the log's signals lead its commands: the rows at its end that read
+        the machine after its last command (0 unless ``time_offset`` < 0)."""
+        return math.ceil(-self.time_offset / dt - 1e-9) if self.time_offset < 0 else 0
+
     def channel_taus(self, names: Sequence[str]) -> np.ndarray:
         """The sensor-filter time constant (s) applied to each of ``names`` (0: not filtered)."""
         own = dict(self.sensor_taus)
@@ -190,7 +195,7 @@ class Simulator:
         sample as if the machine had stopped there."""
         plan = plan or Plan()
         n = len(commands)
-        lead = math.ceil(-self.twin.time_offset / self.control_dt - 1e-9) if self.twin.time_offset < 0 and n else 0
+        lead = self.twin.lead_steps(self.control_dt) if n else 0
         if lead:
             tail = np.asarray(self.twin.command_tail[:lead], dtype=float).reshape(-1, 3)
             held = np.repeat(tail[-1:] if len(tail) else np.asarray(commands)[-1:], lead - len(tail), axis=0)
