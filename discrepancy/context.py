@@ -45,6 +45,12 @@ class NullModel:
     channel_noise: dict[str, float]  # sensor noise per channel, signal units
     #: the window statistics' null under the whitening with drift (:meth:`NoiseModel.whiten_drift`)
     drift_calibration: NullCalibration | None = None
+    #: what each null run moved the twin by, (runs, steps, signals), signal units, where the log leaves the twin's
+    #: inputs uncertain (its start and pile, its commands' timing, its sensor filters or its time offset), so
+    #: that a fitted parameter inherits that spread; None where the twin's start and inputs are the recording's
+    deviations: np.ndarray | None = None
+    #: the effects each null run replayed (the centre's, jittered), one tuple per run (empty around the nominal)
+    run_effects: tuple[tuple[Effect, ...], ...] = ()
 
 
 @dataclass(frozen=True)

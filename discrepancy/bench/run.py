@@ -75,6 +75,9 @@ def _matches(planted: list[Effect], scales: Scales, d: Diagnosis) -> list[dict[s
             true, est = np.array(list(truth.params.values())), np.array([hit.parameters[k] for k in truth.params])
             row["param_error"] = float(np.linalg.norm(est - true) / max(np.linalg.norm(true), 1e-300))
             row["covered"] = all(hit.interval[k][0] <= v <= hit.interval[k][1] for k, v in truth.params.items())
+            row["estimate"] = {k: float(hit.parameters[k]) for k in truth.params}
+            row["truth"] = {k: float(v) for k, v in truth.params.items()}
+            row["interval"] = {k: [float(hit.interval[k][0]), float(hit.interval[k][1])] for k in truth.params}
         out.append(row)
     return out
 

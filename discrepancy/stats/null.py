@@ -48,12 +48,14 @@ def _jittered(effects: Sequence[Effect], rng: np.random.Generator) -> list[Effec
     return out
 
 
-def _plans(ctx: Context, spec: NullSpec, effects: Sequence[Effect]) -> list[Plan]:
-    out = []
+def _plans(ctx: Context, spec: NullSpec, effects: Sequence[Effect]) -> tuple[list[Plan], list[tuple[Effect, ...]]]:
+    """One plan per null run and the (jittered) effects it replays."""
+    plans, replayed = [], []
     for k, base in enumerate(spec.plans(ctx.scales)):
-        rng = np.random.default_rng([spec.seed, k, 31])
-        out.append(plan(_jittered(effects, rng), ctx.replays.runner.twin.soil, base.physics) if effects else base)
-    return out
+        jittered = _jittered(effects, np.random.default_rng([spec.seed, k, 31])) if effects else []
+        plans.append(plan(jittered, ctx.replays.runner.twin.soil, base.physics) if effects else base)
+        replayed.append(tuple(jittered))
+    return plans, replayed
 
 
 def calibrate(ctx: Context, spec: NullSpec | None = None, effects: Sequence[Effect] = ()) -> NullModel:
@@ -61,7 +63,8 @@ def calibrate(ctx: Context, spec: NullSpec | None = None, effects: Sequence[Effe
     spec = spec or NullSpec()
     center_result = ctx.replays.get(list(effects))
     center = ctx.matrix(center_result)
-    runs = _null_runs(ctx, spec, _plans(ctx, spec, effects))
+    plans, replayed = _plans(ctx, spec, effects)
+    runs = _null_runs(ctx, spec, plans)
     ctx.replays.runs += len(runs)
     dev = np.stack([ctx.matrix(r) - center for r in runs])
     dev = np.where(np.isfinite(dev), dev, 0.0)
@@ -78,7 +81,10 @@ def calibrate(ctx: Context, spec: NullSpec | None = None, effects: Sequence[Effe
     regressors = np.nan_to_num(center)  # what the twin's own signals explain is not noise (sensor_noise)
     noise, calibration, cost, drift = null_from_arrays(ctx.names, residual, dev, spread, regressors, ctx.windows(),
                                                        np.random.default_rng([spec.seed, 7919]))
-    return NullModel(noise, calibration, cost, _channel_noise(ctx, center_result.signals), drift)
+    uncertain_inputs = (twin.start_draws or twin.offset_spread > 0.0 or np.any(taus > 0.0)
+                        or command_timing(ctx.real.input_report) > 0)
+    return NullModel(noise, calibration, cost, _channel_noise(ctx, center_result.signals), drift,
+                     dev if uncertain_inputs else None, tuple(replayed))
 
 
 def filter_deviations(twin: np.ndarray, dt: float, taus: np.ndarray, runs: int, rng: np.random.Generator
