@@ -14,7 +14,10 @@ seed by reset options (``WheelLoaderDigEnv.RESET_OPTIONS``) read from the log, f
   meets the slope where ``(x − toe)·tan(repose)`` reaches its edge: a nearer toe with a flatter slope meets it
   almost alike), so the misfit is a narrow diagonal valley in which a search one quantity at a time stalls several
   % short. Where no step helps but one of the Jacobian's own difference probes fits better (a bumpy floor: a small
-  machine's contact moves by whole physics steps), the fit moves there and goes on.
+  machine's contact moves by whole physics steps), the fit moves there and goes on. Once it has converged,
+  moves of distance and repose angle by a quarter to one half-range are tried (:func:`_escape`): the floor has
+  minima closer together than the grid's spacing, and where one of those moves fits clearly better the joint fit
+  starts again from it.
 
 A pile quantity the log does not see (typically the height: a short dig never reaches the crest) has a zero column
 in the Jacobian; it stays at its nominal value and is reported in :attr:`StartEstimate.unidentified`.
@@ -90,6 +93,12 @@ SPAN = 2.0  # searched range, in units of the half-range the env's reset draws
 #: Levenberg–Marquardt iterations (each a batch of 2·len(FITTED) Jacobian replays, unless the last step was
 #: rejected, and one of len(DAMPING) trial steps).
 LM_ITERATIONS = 12
+#: Moves (half-ranges) of each coarse quantity tried once the joint fit has converged, to leave a local minimum
+#: (:func:`_escape`), at most :data:`ESCAPES` times, each taken only where it lowers the misfit by
+#: :data:`ESCAPE_GAIN` of itself (less is the valley floor's bumpiness).
+ESCAPE_SCAN = (-1.0, -0.75, -0.5, -0.25, 0.25, 0.5, 0.75, 1.0)
+ESCAPES = 2
+ESCAPE_GAIN = 0.1
 #: Central-difference step, in half-ranges (1.25 % of a boom length in distance, 0.5° in repose angle): the valley
 #: floor is bumpy on a scale of ~1 % in distance (the contact moves by whole physics steps), and a narrow difference
 #: measures a bump, so the fit stalled on one several % from the truth; this step measures the valley's trend.
@@ -388,7 +397,39 @@ def _coarse_then_joint(fit: _Fit, centre: dict[str, tuple[float, float]], curren
         k = int(np.argmin([misfit(r) for r in runs]))
         z, current[name] = runs[k], float(grid[k])
         shift = z.shift if z is not None else shift
-    return _levenberg_marquardt(fit, centre, current, z, fit_offset)
+    z, unseen = _levenberg_marquardt(fit, centre, current, z, fit_offset)
+    for _ in range(ESCAPES):
+        moved = _escape(fit, centre, current, z, fit_offset)
+        if moved is None:
+            break
+        z, unseen = _levenberg_marquardt(fit, centre, current, moved, fit_offset)
+    return z, unseen
+
+
+def _escape(fit: _Fit, centre: dict[str, tuple[float, float]], current: dict[str, float], z: _Probe | None,
+            fit_offset: bool) -> _Probe | None:
+    """The best of :data:`ESCAPE_SCAN` moves of each :data:`COARSE` quantity from ``current`` (the others held)
+    where it fits better than ``z`` (``current`` updated to it), else None: the valley floor has local minima
+    a fraction of a half-range apart, which the grid's spacing (one half-range) cannot tell apart and the joint fit
+    does not leave (benchmark seed 88 case 55, a null 500 Hz log: the repose angle stopped 0.9 half-ranges off at
+    a misfit of 0.0094 against the truth's 0.0007 across a bump; 26 windows were located in the penetration)."""
+    if z is None:
+        return None
+    best, found = misfit(z), None
+    for name in COARSE:
+        c, half = centre[name]
+        values = [current[name] + o * half for o in ESCAPE_SCAN]
+        values = [v for v in values if abs(v - c) <= SPAN * half and (v > 0.0 or name not in PILE)]
+        runs = fit.run([_start({**current, name: v}) for v in values], [z.shift] * len(values))
+        if fit_offset:
+            runs = [fit.best_shift(r) for r in runs]
+        for v, r in zip(values, runs, strict=True):
+            if misfit(r) < (1.0 - ESCAPE_GAIN) * best:
+                best, found = misfit(r), (name, v, r)
+    if found is None:
+        return None
+    current[found[0]] = found[1]
+    return found[2]
 
 
 def _channel_filter_stage(fit: _Fit, centre: dict[str, tuple[float, float]], current: dict[str, float],
