@@ -15,9 +15,10 @@ seed by reset options (``WheelLoaderDigEnv.RESET_OPTIONS``) read from the log, f
   almost alike), so the misfit is a narrow diagonal valley in which a search one quantity at a time stalls several
   % short. Where no step helps but one of the Jacobian's own difference probes fits better (a bumpy floor: a small
   machine's contact moves by whole physics steps), the fit moves there and goes on. Once it has converged,
-  moves of distance and repose angle by a quarter to one half-range are tried (:func:`_escape`): the floor has
-  minima closer together than the grid's spacing, and where one of those moves fits clearly better the joint fit
-  starts again from it.
+  moves of distance and repose angle by a quarter to one half-range, and of each start angle by 0.5–4 mrad, are
+  tried (:func:`_escape`): the floor has minima closer together than the grid's spacing, and the angles' valley is
+  narrower than the joint fit's difference step; where one of those moves fits clearly better the joint fit starts
+  again from it.
 
 A pile quantity the log does not see (typically the height: a short dig never reaches the crest) has a zero column
 in the Jacobian; it stays at its nominal value and is reported in :attr:`StartEstimate.unidentified`.
@@ -97,6 +98,8 @@ LM_ITERATIONS = 12
 #: (:func:`_escape`), at most :data:`ESCAPES` times, each taken only where it lowers the misfit by
 #: :data:`ESCAPE_GAIN` of itself (less is the valley floor's bumpiness).
 ESCAPE_SCAN = (-1.0, -0.75, -0.5, -0.25, 0.25, 0.5, 0.75, 1.0)
+#: ... and moves of each start angle, rad (its valley is a few mrad wide; see :func:`_escape`)
+ANGLE_SCAN = (-4e-3, -2e-3, -1e-3, -5e-4, 5e-4, 1e-3, 2e-3, 4e-3)
 ESCAPES = 2
 ESCAPE_GAIN = 0.1
 #: Central-difference step, in half-ranges (1.25 % of a boom length in distance, 0.5° in repose angle): the valley
@@ -408,18 +411,23 @@ def _coarse_then_joint(fit: _Fit, centre: dict[str, tuple[float, float]], curren
 
 def _escape(fit: _Fit, centre: dict[str, tuple[float, float]], current: dict[str, float], z: _Probe | None,
             fit_offset: bool) -> _Probe | None:
-    """The best of :data:`ESCAPE_SCAN` moves of each :data:`COARSE` quantity from ``current`` (the others held)
-    where it fits better than ``z`` (``current`` updated to it), else None: the valley floor has local minima
-    a fraction of a half-range apart, which the grid's spacing (one half-range) cannot tell apart and the joint fit
-    does not leave (benchmark seed 88 case 55, a null 500 Hz log: the repose angle stopped 0.9 half-ranges off at
-    a misfit of 0.0094 against the truth's 0.0007 across a bump; 26 windows were located in the penetration)."""
+    """The best of :data:`ESCAPE_SCAN` moves of each :data:`COARSE` quantity and :data:`ANGLE_SCAN` moves of each
+    start angle from ``current`` (the others held) where it fits better than ``z`` (``current`` updated to it),
+    else None. The valley floor has local minima a fraction of a half-range apart, which the grid's spacing (one
+    half-range) cannot tell apart and the joint fit does not leave (benchmark seed 88 case 55, a null 500 Hz log:
+    the repose angle stopped 0.9 half-ranges off at a misfit of 0.0094 against the truth's 0.0007 across a bump;
+    26 windows were located in the penetration). The start angles' valley is narrower than the joint fit's
+    difference step (:data:`FD_STEP`, 7.5 mrad for the bucket): seed 90 case 27, a null 500 Hz log, stopped with
+    the bucket 1.5 mrad off at a misfit of 1.10, where the truth's angle alone gives 0.11."""
     if z is None:
         return None
     best, found = misfit(z), None
-    for name in COARSE:
+    moves = [(name, [current[name] + o * centre[name][1] for o in ESCAPE_SCAN]) for name in COARSE]
+    moves += [(name, [current[name] + o for o in ANGLE_SCAN]) for name in ANGLES]
+    for name, values in moves:
         c, half = centre[name]
-        values = [current[name] + o * half for o in ESCAPE_SCAN]
-        values = [v for v in values if abs(v - c) <= SPAN * half and (v > 0.0 or name not in PILE)]
+        values = [v for v in values if (abs(v) <= MAX_ANGLE if name in ANGLES else
+                                        abs(v - c) <= SPAN * half and (v > 0.0 or name not in PILE))]
         runs = fit.run([_start({**current, name: v}) for v in values], [z.shift] * len(values))
         if fit_offset:
             runs = [fit.best_shift(r) for r in runs]
