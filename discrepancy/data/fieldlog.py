@@ -623,8 +623,9 @@ def first_order_filter(x: np.ndarray, dt: float, tau: float) -> np.ndarray:
         return x.copy()
     a = math.exp(-dt / tau)
     c = tau * (1.0 - a) / dt
-    b, den = np.array([1.0 - c, c - a]), np.array([1.0, -a])
-    y, _ = signal.lfilter(b, den, x, zi=signal.lfilter_zi(b, den) * x[..., :1])
+    # settled start: at a constant input x the filter's one state (transposed direct form II) is y - (1 - c) x = c x,
+    # what signal.lfilter_zi returns through a companion-matrix solve on every call (equal to 2e-16)
+    y, _ = signal.lfilter((1.0 - c, c - a), (1.0, -a), x, zi=c * x[..., :1])
     return y
 
 
