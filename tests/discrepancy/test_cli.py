@@ -71,6 +71,27 @@ def test_diagnose_cli_prints_full_labels_quietly(planted, tmp_path, capsys, monk
     assert effects[0]["alternatives"] == [LABELS[3]]
 
 
+@pytest.mark.parametrize(("cores", "flag", "expected"), [(2, [], 2), (64, [], 8), (None, [], 1),
+                                                           (64, ["--workers", "1"], 1), (2, ["--workers", "3"], 3)])
+def test_diagnose_uses_every_core_by_default(planted, tmp_path, monkeypatch, cores, flag, expected) -> None:
+    """Without ``--workers`` the replays run in one process per core (at most MAX_DEFAULT_WORKERS); ``--workers``
+    overrides it."""
+    from scaletwin.cli import diagnose as cli_diagnose
+
+    seen = {}
+
+    def capture(real, twin, held_out=(), options=None):
+        seen["workers"] = options.workers
+        raise discrepancy.RecordingError("stop here")
+
+    monkeypatch.setattr(discrepancy, "diagnose", capture)
+    monkeypatch.setattr(cli_diagnose.os, "cpu_count", lambda: cores)
+    path = to_recording(planted([]).noisy).to_parquet(tmp_path / "real.parquet")
+    assert main(["diagnose", str(path), "--twin", "er12:gravel:11", "--quiet", *flag]) == 2
+    assert seen["workers"] == expected
+    assert cli_diagnose.MAX_DEFAULT_WORKERS == 8
+
+
 @pytest.mark.slow
 def test_bench_cli(tmp_path) -> None:
     out, jsonl = tmp_path / "bench.md", tmp_path / "bench.jsonl"
