@@ -127,14 +127,27 @@ SEEN = 1.0
 #: these rows also makes each replay several times shorter.
 EARLY_SHARE = 0.35
 #: The null's runs of a log without seed start from draws around the estimate (:attr:`StartEstimate.draws`), each
-#: quantity moved by this many half-ranges of the env's own draw (the valley floor is bumpy on about this scale,
-#: see :data:`FD_STEP`). Later in the dig any such move changes the events' timing, so the null's spread there is
-#: what the log leaves open. A spread from the fit's Laplace covariance was tried (the residual variance, inflated
-#: for its autocorrelation, times (JᵀWJ)⁻¹): a planted effect inflates that residual, the null widened until it
-#: swallowed early-dig effects (benchmark seeds 0–2: two of five field-log singles named first without it, none
-#: with it; the nulls no worse).
+#: direction moved by at least this many half-ranges of the env's own draw (the valley floor is bumpy on about this
+#: scale, see :data:`FD_STEP`), wider where the fitted rows allow (:data:`SHAPE_LR`). Later in the dig any such move
+#: changes the events' timing, so the null's spread there is what the log leaves open. A spread from the fit's
+#: Laplace covariance alone was tried (the residual variance, inflated for its autocorrelation, times (JᵀWJ)⁻¹): a
+#: planted effect inflates that residual, the null widened until it swallowed early-dig effects (benchmark seeds
+#: 0–2: two of five field-log singles named first without it, none with it; the nulls no worse); the shaped draws
+#: are that spread kept between this floor and one half-range.
 START_SPREAD = 0.2
 DRAWS = 8  # draws kept (the null runs cycle through them)
+#: The null's start draws follow what the fitted rows allow (:func:`_shape`): along each direction of the fit's
+#: curvature they spread as far as a start moves before the likelihood-ratio statistic N_eff (m − m̂) / m̂ (m the
+#: misfit, :func:`misfit`) reaches SHAPE_LR, the spread kept within [SHAPE_MIN, SHAPE_MAX] half-ranges (SHAPE_MIN:
+#: START_SPREAD, so no direction is drawn narrower than before; SHAPE_MAX: the env's own draw), the misfit floored at
+#: SHAPE_FLOOR (a noise of 0.1 % of a channel's spread). Isotropic draws of START_SPREAD missed the distance–repose
+#: valley: in four failed field-log nulls of seeds 88–93 the true start lay along it, 0.4–2 half-ranges from the
+#: estimate (seed 93 case 12: repose angle 0.96 half-ranges off, the valley's 1-σ extent there 1.0; the null then
+#: located nothing where it had named four effects). Chosen on 16 cases of seeds 91–93 (README, history).
+SHAPE_LR = 2.0
+SHAPE_MIN = START_SPREAD
+SHAPE_MAX = 1.0
+SHAPE_FLOOR = 0.1**2
 #: Shares of the rows after the early ones that :func:`refit_whole_log` fits in turn (the last: all). Over the
 #: whole log the start explains what only the late dig shows: on tuning nulls it cleared every located window that
 #: an early-rows start left (seed 3 case 0: repose angle 2.7 half-ranges off, 26 windows → 0), but it cleared the
@@ -166,7 +179,7 @@ class StartEstimate:
     #: MIN_TAU_GAIN of the misfit (0: none)
     sensor_tau: float = 0.0
     rows: int = 0  # the rows the start was fitted on end here (0: all); the rows a filter is fitted on too
-    #: starts the log cannot tell from this one, drawn from the estimate's uncertainty (see :data:`START_SPREAD`)
+    #: starts the log cannot tell from this one, drawn from the estimate's uncertainty (see :data:`SHAPE_LR`)
     draws: tuple[Start, ...] = ()
     #: s: the log's signals lag its commands by this much (fitted jointly; 0: none worth undoing, see
     #: :func:`_offset_seen`)
@@ -375,7 +388,7 @@ def estimate_start(ep: EpisodeData, runner: Runner, profile_filter: bool = False
         current = {k: c for k, (c, _) in centre.items()}
         return StartEstimate(_start(current), float(default), float(default), fit.replays, unidentified, 0.0,
                              fit.rows, _draws(centre, current, unseen), 0.0)
-    draws = _draws(centre, current, unseen)
+    draws = _draws(centre, current, unseen, _shape(fit, centre, current, unseen, z))
     offset = z.shift * ep.dt if z is not None else 0.0
     return StartEstimate(_start(current), misfit(z), float(default), fit.replays, unidentified, common_tau,
                          fit.rows, draws, offset)
@@ -482,9 +495,11 @@ def refit_whole_log(ep: EpisodeData, runner: Runner, estimate: StartEstimate) ->
         probe = fit.run([_start(current)])[0]
         probe, unseen = _levenberg_marquardt(fit, centre, current, probe)
         replays += fit.replays
-    return StartEstimate(_start(current), misfit(probe), default, replays,
+    before = fit.replays
+    shape = _shape(fit, centre, current, unseen, probe)
+    return StartEstimate(_start(current), misfit(probe), default, replays + fit.replays - before,
                          tuple(k for k in unseen if k in PILE), estimate.sensor_tau, len(ep),
-                         _draws(centre, current, unseen), estimate.offset)
+                         _draws(centre, current, unseen, shape), estimate.offset)
 
 
 def pile_shift(runner: Runner, options: Start) -> float:
@@ -516,19 +531,55 @@ def _bounds(centre: dict[str, tuple[float, float]]) -> tuple[np.ndarray, np.ndar
     return lo, hi
 
 
-def _draws(centre: dict[str, tuple[float, float]], current: dict[str, float], unseen: tuple[str, ...]
-           ) -> tuple[Start, ...]:
+def _draws(centre: dict[str, tuple[float, float]], current: dict[str, float], unseen: tuple[str, ...],
+           shape: np.ndarray | None = None) -> tuple[Start, ...]:
     """:data:`DRAWS` starts around ``current``: each of :data:`FITTED` moved by a normal draw of
-    :data:`START_SPREAD` half-ranges (:data:`SPAN` for a quantity the log does not see); seeded, within
-    :func:`_bounds`."""
+    :data:`START_SPREAD` half-ranges (:data:`SPAN` for a quantity the log does not see), or, given ``shape`` (a
+    square root of the draws' covariance in half-range units, :func:`_shape`), by ``shape`` times a standard normal
+    draw; seeded, within :func:`_bounds`."""
     rng = np.random.default_rng(DRAW_SEED)
     u = _units(centre, current)
-    sd = np.array([SPAN if k in unseen else START_SPREAD for k in FITTED])
+    if shape is None:
+        shape = np.diag([SPAN if k in unseen else START_SPREAD for k in FITTED])
     out = []
     for _ in range(DRAWS):
-        drawn = np.clip(u + sd * rng.standard_normal(len(FITTED)), *_bounds(centre))
+        drawn = np.clip(u + shape @ rng.standard_normal(len(FITTED)), *_bounds(centre))
         out.append(_start({**current, **_from_units(centre, drawn)}))
     return tuple(out)
+
+
+def _shape(fit: _Fit, centre: dict[str, tuple[float, float]], current: dict[str, float], unseen: tuple[str, ...],
+           probe: _Probe | None) -> np.ndarray | None:
+    """Square root of the start draws' covariance (half-range units over :data:`FITTED`) that follows what the
+    fitted rows allow: along each eigen-direction of the Gauss–Newton curvature JᵀWJ (eigenvalue λ) of the seen
+    quantities at ``probe`` (central differences, :data:`FD_STEP`; W the Huber weights), the move at which the
+    likelihood-ratio statistic N_eff (m − m̂) / m̂ reaches :data:`SHAPE_LR`, sqrt(SHAPE_LR · N m̂ / (N_eff λ)) (m̂ the
+    misfit, the residual's mean square where it is below Huber's bound; N the fitted samples, N_eff those discounted
+    for the residual's lag-one autocorrelation ρ, N (1 − ρ) / (1 + ρ)), clipped to [:data:`SHAPE_MIN`,
+    :data:`SHAPE_MAX`]; :data:`SPAN` for a quantity the log does not see. None when a replay failed. Costs two
+    replays of the fitted rows per seen quantity."""
+    seen = [j for j, k in enumerate(FITTED) if k not in unseen]
+    if probe is None or not seen:
+        return None
+    u, eye = _units(centre, current), np.eye(len(FITTED))
+    moved = [u + FD_STEP * eye[j] for j in seen] + [u - FD_STEP * eye[j] for j in seen]
+    runs = fit.run([_start({**current, **_from_units(centre, x)}) for x in moved], [probe.shift] * len(moved))
+    if any(r is None for r in runs):
+        return None
+    k = len(seen)
+    jac = np.stack([(runs[i].z - runs[k + i].z) / (2 * FD_STEP) for i in range(k)], axis=1)  # type: ignore[union-attr]
+    w = np.minimum(1.0, HUBER / np.maximum(np.abs(probe.z), 1e-12))
+    lam, vec = np.linalg.eigh(jac.T @ (w[:, None] * jac))
+    z = probe.z.reshape(-1, len(fit.names))
+    rho = [float(np.corrcoef(col[:-1], col[1:])[0, 1]) for col in z.T if len(col) > 2 and np.std(col) > 0]
+    r = float(np.clip(np.nanmean(rho) if rho else 0.0, 0.0, 0.99))
+    n = probe.z.size
+    n_eff = max(n * (1.0 - r) / (1.0 + r), 1.0)
+    m0 = max(misfit(probe), SHAPE_FLOOR)
+    sd = np.sqrt(SHAPE_LR * n * m0 / (n_eff * np.maximum(lam, 1e-300)))
+    shape = np.diag([SPAN if k in unseen else 0.0 for k in FITTED])
+    shape[np.ix_(seen, seen)] = vec * np.clip(sd, SHAPE_MIN, SHAPE_MAX)[None, :]
+    return shape
 
 
 def _levenberg_marquardt(fit: _Fit, centre: dict[str, tuple[float, float]], current: dict[str, float],

@@ -231,3 +231,64 @@ def test_the_fit_finds_the_narrow_valley_of_the_start_angles() -> None:
     est = _case_start(make_case(27, 90))
     assert dict(est.options)["bucket_angle"] == pytest.approx(-0.01514, abs=1e-3)
     assert est.misfit < 0.2
+
+
+class _LinearFit:
+    """Residuals linear in the start (half-range units about ``u0``): z = (u − u0) A + e, e a fixed white draw of
+    SD ``sigma``; two channels. What ``start._shape`` reads of a fit: ``names`` and ``run``."""
+
+    names = ("a", "b")
+
+    def __init__(self, centre: dict, u0: np.ndarray, a: np.ndarray, sigma: float) -> None:
+        self.centre, self.u0, self.a = centre, u0, a
+        self.e = sigma * np.random.default_rng(3).standard_normal(a.shape[1])
+
+    def run(self, starts: list, shifts: list) -> list:
+        from discrepancy.twin.start import _Probe, _units
+
+        return [_Probe((_units(self.centre, dict(st)) - self.u0) @ self.a + self.e, None, shift=sh)
+                for st, sh in zip(starts, shifts, strict=True)]
+
+
+def test_start_draws_follow_what_the_fitted_rows_allow() -> None:
+    """The null's start draws of a log without seed are shaped by the fit's curvature: along each of its
+    eigen-directions they spread as far as the likelihood-ratio statistic N_eff (m − m̂) / m̂ allows before it
+    reaches SHAPE_LR (a start moved that far raises it by SHAPE_LR), clipped to [SHAPE_MIN, SHAPE_MAX] half-ranges;
+    a quantity the log does not see keeps SPAN. A residual linear in the start gives each extent in closed form."""
+    from discrepancy.twin import start as S
+
+    centre = S._nominal({}, 0.6)
+    current = {k: c for k, (c, _) in centre.items()}
+    u0 = S._units(centre, current)
+    n, sigma = 400, 0.5
+    rng = np.random.default_rng(11)
+    basis = np.linalg.qr(rng.standard_normal((n, 4)))[0].T  # orthonormal rows: the curvature is diag(gain²)
+    wanted = np.array([0.05, 0.5, 3.0, 0.7])  # 1-σ extents along the four seen quantities: below, in, above the clip
+    seen = [k for k in S.FITTED if k != "pile_height"]
+    gains = np.sqrt(2.0) * sigma / wanted  # sd = sqrt(SHAPE_LR N m̂ / (N_eff λ)), m̂ ≈ σ², N_eff ≈ N, λ = gain²
+    a = np.zeros((len(S.FITTED), n))
+    for row, k in enumerate(seen):
+        a[S.FITTED.index(k)] = gains[row] * basis[row]
+    fit = _LinearFit(centre, u0, a, sigma)
+    probe = fit.run([S._start(current)], [0.0])[0]
+    shape = S._shape(fit, centre, current, ("pile_height",), probe)
+    assert shape is not None
+    m0 = S.misfit(probe)
+    n_eff = n * 1.0  # a white residual: N_eff ≈ N
+    for row, k in enumerate(seen):
+        j = S.FITTED.index(k)
+        exact = np.sqrt(S.SHAPE_LR * n * m0 / (n_eff * gains[row] ** 2))
+        assert abs(exact - wanted[row]) < 0.1 * wanted[row]
+        # the curvature is diagonal in the quantities: each spreads alone, by its own extent clipped
+        assert np.count_nonzero(np.abs(shape[j]) > 1e-9) == 1
+        # (within the 2 % that the white draw's chance lag-one correlation takes off N_eff)
+        assert np.linalg.norm(shape[j]) == pytest.approx(np.clip(exact, S.SHAPE_MIN, S.SHAPE_MAX), rel=0.03)
+        step = exact * np.eye(len(S.FITTED))[j]  # both ways: the mean rise is the quadratic term alone
+        rise = np.mean([S.misfit(fit.run([S._start({**current, **S._from_units(centre, u0 + sign * step)})],
+                                         [0.0])[0]) for sign in (1.0, -1.0)]) - m0
+        lr = n_eff * rise / m0
+        assert 0.8 * S.SHAPE_LR < lr < 1.25 * S.SHAPE_LR, (k, lr)  # where the statistic reaches SHAPE_LR
+    h = S.FITTED.index("pile_height")
+    assert shape[h, h] == S.SPAN and np.count_nonzero(shape[h]) == 1
+    draws = S._draws(centre, current, ("pile_height",), shape)
+    assert len(draws) == S.DRAWS and draws == S._draws(centre, current, ("pile_height",), shape)  # seeded
