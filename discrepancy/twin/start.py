@@ -566,8 +566,8 @@ def _shape(fit: _Fit, centre: dict[str, tuple[float, float]], current: dict[str,
     runs = fit.run([_start({**current, **_from_units(centre, x)}) for x in moved], [probe.shift] * len(moved))
     if any(r is None for r in runs):
         return None
-    k = len(seen)
-    jac = np.stack([(runs[i].z - runs[k + i].z) / (2 * FD_STEP) for i in range(k)], axis=1)  # type: ignore[union-attr]
+    jac = np.stack([(runs[i].z - runs[len(seen) + i].z) / (2 * FD_STEP)  # type: ignore[union-attr]
+                    for i in range(len(seen))], axis=1)
     w = np.minimum(1.0, HUBER / np.maximum(np.abs(probe.z), 1e-12))
     lam, vec = np.linalg.eigh(jac.T @ (w[:, None] * jac))
     z = probe.z.reshape(-1, len(fit.names))
