@@ -34,6 +34,11 @@ def huber(z: np.ndarray) -> np.ndarray:
     return np.where(a <= HUBER, z * z, 2.0 * HUBER * a - HUBER * HUBER)
 
 
+def huber_weights(z: np.ndarray) -> np.ndarray:
+    """Weights of iteratively reweighted least squares for Huber's ρ: 1 inside ±HUBER, HUBER / |z| outside."""
+    return np.minimum(1.0, HUBER / np.maximum(np.abs(z), 1e-12))
+
+
 @dataclass(frozen=True)
 class NullModel:
     """Noise model, window-statistic calibration and expected objective when nothing (more) differs

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from discrepancy.context import HUBER, Context, huber
+from discrepancy.context import Context, huber, huber_weights
 from discrepancy.effects import Effect
 from discrepancy.search.candidates import Candidate, physics_candidates
 from discrepancy.search.refine import KINEMATIC, make_search, run_searches
@@ -51,7 +51,7 @@ def _joint_scores(ctx: Context, base: list[Effect], batch: list[tuple[Candidate,
     """Robust residual of the nominal twin after regressing it on the base's and each candidate's signatures."""
     nominal = ctx.simulate([])
     r = ctx.z(nominal).ravel()
-    w = np.minimum(1.0, HUBER / np.maximum(np.abs(r), 1e-12))
+    w = huber_weights(r)
     d_base = (ctx.z(nominal) - ctx.z(ctx.simulate(base))).ravel()  # = whitened change the base causes
     out = []
     for m in ctx.simulate_many([[c.effect(u, ctx.scales)] for c, u in batch]):

@@ -47,11 +47,12 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from discrepancy.context import HUBER, huber
+from discrepancy.context import huber, huber_weights
 from discrepancy.data.channels import COMPARED
 from discrepancy.data.episode import EpisodeData
 from discrepancy.data.fieldlog import (
@@ -561,14 +562,11 @@ def _shape(fit: _Fit, centre: dict[str, tuple[float, float]], current: dict[str,
     seen = [j for j, k in enumerate(FITTED) if k not in unseen]
     if probe is None or not seen:
         return None
-    u, eye = _units(centre, current), np.eye(len(FITTED))
-    moved = [u + FD_STEP * eye[j] for j in seen] + [u - FD_STEP * eye[j] for j in seen]
-    runs = fit.run([_start({**current, **_from_units(centre, x)}) for x in moved], [probe.shift] * len(moved))
-    if any(r is None for r in runs):
+    cols = _central_differences(fit, centre, current, _units(centre, current), seen, probe.shift)[1]
+    if cols is None:
         return None
-    jac = np.stack([(runs[i].z - runs[len(seen) + i].z) / (2 * FD_STEP)  # type: ignore[union-attr]
-                    for i in range(len(seen))], axis=1)
-    w = np.minimum(1.0, HUBER / np.maximum(np.abs(probe.z), 1e-12))
+    jac = np.stack(cols, axis=1)
+    w = huber_weights(probe.z)
     lam, vec = np.linalg.eigh(jac.T @ (w[:, None] * jac))
     z = probe.z.reshape(-1, len(fit.names))
     rho = [float(np.corrcoef(col[:-1], col[1:])[0, 1]) for col in z.T if len(col) > 2 and np.std(col) > 0]
@@ -580,6 +578,22 @@ def _shape(fit: _Fit, centre: dict[str, tuple[float, float]], current: dict[str,
     shape = np.diag([SPAN if k in unseen else 0.0 for k in FITTED])
     shape[np.ix_(seen, seen)] = vec * np.clip(sd, SHAPE_MIN, SHAPE_MAX)[None, :]
     return shape
+
+
+def _central_differences(fit: _Fit, centre: dict[str, tuple[float, float]], current: dict[str, float],
+                         u: np.ndarray, axes: Sequence[int], shift: float
+                         ) -> tuple[tuple[list[np.ndarray], list[_Probe | None]], list[np.ndarray] | None]:
+    """One batch of replays of the start ``u`` (half-range units of :data:`FITTED`; a further entry, the offset, is
+    held) moved by +:data:`FD_STEP` along each of ``axes``, then by −FD_STEP, each read ``shift`` control steps
+    late: ((the moved points, their probes), the columns ∂z/∂u of those axes by central differences, or None when a
+    replay failed)."""
+    eye = np.eye(len(u))
+    moved = [u + FD_STEP * eye[j] for j in axes] + [u - FD_STEP * eye[j] for j in axes]
+    runs = fit.run([_start({**current, **_from_units(centre, x)}) for x in moved], [shift] * len(moved))
+    if any(r is None for r in runs):
+        return (moved, runs), None
+    k = len(moved) // 2
+    return (moved, runs), [(runs[i].z - runs[k + i].z) / (2 * FD_STEP) for i in range(k)]  # type: ignore[union-attr]
 
 
 def _levenberg_marquardt(fit: _Fit, centre: dict[str, tuple[float, float]], current: dict[str, float],
@@ -606,11 +620,9 @@ def _levenberg_marquardt(fit: _Fit, centre: dict[str, tuple[float, float]], curr
 
     def jacobian(v: np.ndarray, at: _Probe) -> np.ndarray | None:
         eye = np.eye(len(v))
-        moved = [v + FD_STEP * eye[j] for j in range(n)] + [v - FD_STEP * eye[j] for j in range(n)]
-        runs = fit.run([start_at(x) for x in moved], [shift_of(x) for x in moved])
-        if any(r is None for r in runs):
+        (moved, runs), cols = _central_differences(fit, centre, current, v, range(n), shift_of(v))
+        if cols is None:
             return None
-        cols = [(runs[j].z - runs[n + j].z) / (2 * FD_STEP) for j in range(n)]  # type: ignore[union-attr]
         probed[:] = [(misfit(r), x, r) for x, r in zip(moved, runs, strict=True)]  # type: ignore[misc]
         if fit_offset:
             late, early = fit.residuals(at.result, shift_of(v) + OFFSET_STEP), fit.residuals(at.result, shift_of(v)
@@ -636,7 +648,7 @@ def _levenberg_marquardt(fit: _Fit, centre: dict[str, tuple[float, float]], curr
             seen |= np.sum(jac**2, axis=0) >= SEEN
         if not seen.any():
             break
-        w = np.minimum(1.0, HUBER / np.maximum(np.abs(z), 1e-12))  # IRLS weights of Huber's ρ
+        w = huber_weights(z)
         # the directions this point's Jacobian moves: one seen at an earlier point can be flat here (benchmark seed
         # 23 case 11, a mini log: a zero column left the damped normal matrix singular), and a step along it is
         # not determined, so it is left alone
