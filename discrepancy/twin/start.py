@@ -37,7 +37,10 @@ against channels filtered at 0.05–0.3 s each left the start off too (benchmark
 0.22, and each channel's τ fitted against that start came out 0.01–0.10 s short, read as a sensor gain on
 ``lift_extension``); where a filter is found the start is therefore fitted again with each channel's own τ
 profiled out and the offset held (:func:`_channel_filter_stage`): a common offset and one τ per channel both lag,
-and only the common fit can tell them apart.
+and only the common fit can tell them apart. A log that leads its commands shows on its last fitted rows what the
+twin does after them, so every replay of the fit runs up to :data:`MAX_OFFSET` past those rows: ended there, the
+twin's last sample was held over them, which only a shorter lead made up for (leads fitted 0.1 s short, and 8 of 17
+benchmark nulls whose signals led named something, against 0 of 8 that lagged).
 
 Everything is fitted on the rows up to the first contact and a share after it (:data:`EARLY_SHARE`); what the log
 leaves uncertain becomes :attr:`StartEstimate.draws`, the starts of the null's runs.
@@ -89,6 +92,9 @@ MAX_OFFSET = 1.0  # s: the largest time offset between a log's signals and its c
 #: Share of the misfit an offset the circuits do not confirm must remove against the start fitted again without
 #: it, to be kept (a lead the start cannot make up for: benchmark seed 88 case 20, 26 %).
 OFFSET_REFIT_GAIN = 0.2
+#: Control steps replayed past the fitted rows beyond the largest lead searched (:data:`MAX_OFFSET`), so that the
+#: cubic interpolation of a twin read early stays inside its replay (see :class:`_Fit`).
+LEAD_MARGIN = 2
 OFFSET_STEP = 0.25  # control steps: the offset's central-difference step (read off the same replay)
 ANGLE_STEP = 1e-3  # rad, finite-difference step of the angles' Jacobian
 SPAN = 2.0  # searched range, in units of the half-range the env's reset draws
@@ -219,12 +225,18 @@ class _Probe:
 
 class _Fit:
     """The log's motion channels against replays from candidate starts: residual vectors and their misfit, each
-    replay through its best-fitting sensor filter when ``profile_filter``."""
+    replay through its best-fitting sensor filter when ``profile_filter``.
 
-    def __init__(self, ep: EpisodeData, runner: Runner, rows: int, profile_filter: bool = False) -> None:
+    With ``lead`` (control steps) every replay runs that many steps past the fitted rows (as far as the log's
+    commands go), so that a twin read early (a log whose signals lead its commands) compares its own motion with
+    the last fitted rows rather than its last replayed sample held (see :data:`LEAD_MARGIN`)."""
+
+    def __init__(self, ep: EpisodeData, runner: Runner, rows: int, profile_filter: bool = False,
+                 lead: int = 0) -> None:
         names = [s for s in MOTION if s in ep.signals and np.all(np.isfinite(ep.signals[s]))] or \
             [s for s in COMPARED if s in ep.signals and np.all(np.isfinite(ep.signals[s]))]
         self.ep, self.runner, self.rows, self.names = ep, runner, rows, names
+        self.replayed = min(len(ep), rows + max(lead, 0))
         self.scale = np.array([max(0.01 * float(np.ptp(ep.signals[s])), 1e-12) for s in names])
         self.real = np.stack([ep.signals[s][:rows] for s in names])
         self.profile_filter = profile_filter
@@ -284,10 +296,10 @@ class _Fit:
         return _Probe(z, result, float(np.median(taus)), True, shift)
 
     def run(self, starts: list[Start], shifts: list[float] | None = None) -> list[_Probe | None]:
-        """One probe per start (one batch of replays of the log's commands up to the fitted rows' end), each read
-        with its offset in ``shifts`` (control steps; default none)."""
+        """One probe per start (one batch of replays of the log's commands up to the fitted rows' end and the
+        lead past it), each read with its offset in ``shifts`` (control steps; default none)."""
         self.replays += len(starts)
-        results = self.runner.run_many(self.ep.commands[: self.rows], [Plan()] * len(starts), starts=starts)
+        results = self.runner.run_many(self.ep.commands[: self.replayed], [Plan()] * len(starts), starts=starts)
         return [self.residuals(r, s) for r, s in zip(results, shifts or [0.0] * len(starts), strict=True)]
 
     def best_shift(self, probe: _Probe | None) -> _Probe | None:
@@ -344,7 +356,8 @@ def estimate_start(ep: EpisodeData, runner: Runner, profile_filter: bool = False
     centre = _nominal(dict(twin.env_kwargs), twin.soil.repose_angle)
     current = {k: c for k, (c, _) in centre.items()}
     nominal = runner.run_many(ep.commands, [Plan()], starts=[_start(current)])[0]
-    fit = _Fit(ep, runner, fitted_rows(nominal, len(ep)), profile_filter)
+    lead = math.ceil(MAX_OFFSET / ep.dt) + LEAD_MARGIN if fit_offset else 0
+    fit = _Fit(ep, runner, fitted_rows(nominal, len(ep)), profile_filter, lead)
     fit.replays += 1
     first = fit.residuals(nominal)
     default = misfit(first)
