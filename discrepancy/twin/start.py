@@ -92,8 +92,13 @@ MAX_OFFSET = 1.0  # s: the largest time offset between a log's signals and its c
 #: Share of the misfit an offset the circuits do not confirm must remove against the start fitted again without
 #: it, to be kept (a lead the start cannot make up for: benchmark seed 88 case 20, 26 %).
 OFFSET_REFIT_GAIN = 0.2
-#: Control steps replayed past the fitted rows beyond the largest lead searched (:data:`MAX_OFFSET`), so that the
-#: cubic interpolation of a twin read early stays inside its replay (see :class:`_Fit`).
+#: A log may lead its commands (its signals show the machine a little later than the commands it logs beside
+#: them); the start fit's replays then run past the fitted rows (see :class:`_Fit`): LEAD_FACTOR times the lead
+#: that the nominal start's replay reads best (whole steps), plus LEAD_MARGIN control steps (so that the cubic
+#: interpolation of a twin read early stays inside its replay). Where the fit ends leading further than that, it is
+#: fitted again with replays reaching :data:`MAX_OFFSET` past them. A replay that always ran MAX_OFFSET past cost a
+#: quarter more time on 2 cores (more than half at the ``mini``, whose second is 26 control steps).
+LEAD_FACTOR = 1.5
 LEAD_MARGIN = 2
 OFFSET_STEP = 0.25  # control steps: the offset's central-difference step (read off the same replay)
 ANGLE_STEP = 1e-3  # rad, finite-difference step of the angles' Jacobian
@@ -354,10 +359,29 @@ def estimate_start(ep: EpisodeData, runner: Runner, profile_filter: bool = False
     AR(1) 2.3 % of range, ended at a misfit of 30.6 against the nominal start's 5.4, and 43 windows located)."""
     twin = runner.twin
     centre = _nominal(dict(twin.env_kwargs), twin.soil.repose_angle)
+    nominal = runner.run_many(ep.commands, [Plan()], starts=[_start({k: c for k, (c, _) in centre.items()})])[0]
+    rows = fitted_rows(nominal, len(ep))
+    if not fit_offset:
+        return _estimate(ep, runner, nominal, rows, profile_filter, False, 0)
+    full = math.ceil(MAX_OFFSET / ep.dt) + LEAD_MARGIN
+    scan = _Fit(ep, runner, rows, profile_filter)
+    ahead = scan.best_shift(scan.residuals(nominal))
+    lead = min(full, math.ceil(LEAD_FACTOR * max(0.0, -ahead.shift if ahead is not None else 0.0)) + LEAD_MARGIN)
+    est = _estimate(ep, runner, nominal, rows, profile_filter, True, lead)
+    if lead < full and -est.offset / ep.dt > lead - LEAD_MARGIN:  # the fit led further than its replays reach
+        again = _estimate(ep, runner, nominal, rows, profile_filter, True, full)
+        return dataclasses.replace(again, replays=again.replays + est.replays - 1)
+    return est
+
+
+def _estimate(ep: EpisodeData, runner: Runner, nominal: SimResult, rows: int, profile_filter: bool,
+              fit_offset: bool, lead: int) -> StartEstimate:
+    """:func:`estimate_start` from the nominal start's replay ``nominal`` of the whole log, fitted on its first
+    ``rows`` rows, every replay running ``lead`` control steps past them."""
+    twin = runner.twin
+    centre = _nominal(dict(twin.env_kwargs), twin.soil.repose_angle)
     current = {k: c for k, (c, _) in centre.items()}
-    nominal = runner.run_many(ep.commands, [Plan()], starts=[_start(current)])[0]
-    lead = math.ceil(MAX_OFFSET / ep.dt) + LEAD_MARGIN if fit_offset else 0
-    fit = _Fit(ep, runner, fitted_rows(nominal, len(ep)), profile_filter, lead)
+    fit = _Fit(ep, runner, rows, profile_filter, lead)
     fit.replays += 1
     first = fit.residuals(nominal)
     default = misfit(first)
