@@ -208,6 +208,16 @@ def test_a_lead_the_start_cannot_make_up_for_is_kept() -> None:
     assert dict(est.options)["pile_distance"] == pytest.approx(0.540, abs=0.015)
 
 
+@pytest.mark.slow  # ~1 min on 2 cores: a whole seedless start fit of a benchmark case
+def test_a_long_lead_is_fitted_whole() -> None:
+    """Benchmark seed 89 case 59 (a null log without seed at λ 0.83, quantised at 9 bits, 2.3 % of range, its
+    signals 0.457 s ahead of its commands): with replays that ended at the fitted rows the lead came out 0.362 s
+    and the diagnosis named soil adhesion, soil cohesion and ``unexplained`` (21 windows). Replayed past the fitted
+    rows as far as the lead reaches, the fit finds it."""
+    est = _case_start(make_case(59, 89))
+    assert est.offset == pytest.approx(-0.457, abs=0.03)
+
+
 @pytest.mark.slow  # ~40 s on 2 cores: a whole seedless start fit of a benchmark case, with its escape scans
 def test_the_fit_leaves_a_local_minimum_of_the_pile() -> None:
     """Benchmark seed 88 case 55 (a null 500 Hz log without seed at λ 0.99, quantised at 11 bits; held out, run on
