@@ -38,9 +38,9 @@ against channels filtered at 0.05–0.3 s each left the start off too (benchmark
 ``lift_extension``); where a filter is found the start is therefore fitted again with each channel's own τ
 profiled out and the offset held (:func:`_channel_filter_stage`): a common offset and one τ per channel both lag,
 and only the common fit can tell them apart. A log that leads its commands shows on its last fitted rows what the
-twin does after them, so every replay of the fit runs up to :data:`MAX_OFFSET` past those rows: ended there, the
-twin's last sample was held over them, which only a shorter lead made up for (leads fitted 0.1 s short, and 8 of 17
-benchmark nulls whose signals led named something, against 0 of 8 that lagged).
+twin does after them, so the fit's replays run past those rows as far as the lead reaches (:data:`LEAD_FACTOR`):
+ended there, the twin's last sample was held over them, which only a shorter lead made up for (leads fitted 0.1 s
+short, and 8 of 17 benchmark nulls whose signals led named something, against 0 of 8 that lagged).
 
 Everything is fitted on the rows up to the first contact and a share after it (:data:`EARLY_SHARE`); what the log
 leaves uncertain becomes :attr:`StartEstimate.draws`, the starts of the null's runs.
@@ -96,8 +96,9 @@ OFFSET_REFIT_GAIN = 0.2
 #: them); the start fit's replays then run past the fitted rows (see :class:`_Fit`): LEAD_FACTOR times the lead
 #: that the nominal start's replay reads best (whole steps), plus LEAD_MARGIN control steps (so that the cubic
 #: interpolation of a twin read early stays inside its replay). Where the fit ends leading further than that, it is
-#: fitted again with replays reaching :data:`MAX_OFFSET` past them. A replay that always ran MAX_OFFSET past cost a
-#: quarter more time on 2 cores (more than half at the ``mini``, whose second is 26 control steps).
+#: fitted again with replays reaching :data:`MAX_OFFSET` past them. Replays that always ran MAX_OFFSET past took 16 %
+#: more time over the 13 offset cases of benchmark seed 95 (twice as long on a ``mini`` log, whose second is 26
+#: control steps); these took 6 %.
 LEAD_FACTOR = 1.5
 LEAD_MARGIN = 2
 OFFSET_STEP = 0.25  # control steps: the offset's central-difference step (read off the same replay)
@@ -361,29 +362,29 @@ def estimate_start(ep: EpisodeData, runner: Runner, profile_filter: bool = False
     centre = _nominal(dict(twin.env_kwargs), twin.soil.repose_angle)
     nominal = runner.run_many(ep.commands, [Plan()], starts=[_start({k: c for k, (c, _) in centre.items()})])[0]
     rows = fitted_rows(nominal, len(ep))
+    # the nominal replay covers the whole log, so its probe is the same whatever the fit's replays run past
+    plain = _Fit(ep, runner, rows, profile_filter)
+    first = plain.residuals(nominal)
     if not fit_offset:
-        return _estimate(ep, runner, nominal, rows, profile_filter, False, 0)
+        return _estimate(ep, runner, centre, first, rows, profile_filter, False, 0)
     full = math.ceil(MAX_OFFSET / ep.dt) + LEAD_MARGIN
-    scan = _Fit(ep, runner, rows, profile_filter)
-    ahead = scan.best_shift(scan.residuals(nominal))
+    ahead = plain.best_shift(first)
     lead = min(full, math.ceil(LEAD_FACTOR * max(0.0, -ahead.shift if ahead is not None else 0.0)) + LEAD_MARGIN)
-    est = _estimate(ep, runner, nominal, rows, profile_filter, True, lead)
+    est = _estimate(ep, runner, centre, first, rows, profile_filter, True, lead)
     if lead < full and -est.offset / ep.dt > lead - LEAD_MARGIN:  # the fit led further than its replays reach
-        again = _estimate(ep, runner, nominal, rows, profile_filter, True, full)
+        again = _estimate(ep, runner, centre, first, rows, profile_filter, True, full)
         return dataclasses.replace(again, replays=again.replays + est.replays - 1)
     return est
 
 
-def _estimate(ep: EpisodeData, runner: Runner, nominal: SimResult, rows: int, profile_filter: bool,
-              fit_offset: bool, lead: int) -> StartEstimate:
-    """:func:`estimate_start` from the nominal start's replay ``nominal`` of the whole log, fitted on its first
-    ``rows`` rows, every replay running ``lead`` control steps past them."""
-    twin = runner.twin
-    centre = _nominal(dict(twin.env_kwargs), twin.soil.repose_angle)
+def _estimate(ep: EpisodeData, runner: Runner, centre: dict[str, tuple[float, float]], first: _Probe | None,
+              rows: int, profile_filter: bool, fit_offset: bool, lead: int) -> StartEstimate:
+    """:func:`estimate_start` about ``centre`` (see :func:`_nominal`) from ``first``, the probe of the nominal
+    start's replay of the whole log, fitted on its first ``rows`` rows, every replay running ``lead`` control steps
+    past them."""
     current = {k: c for k, (c, _) in centre.items()}
     fit = _Fit(ep, runner, rows, profile_filter, lead)
     fit.replays += 1
-    first = fit.residuals(nominal)
     default = misfit(first)
     angles_seen = len(_head_channels(ep)) >= len(ANGLES)
     if angles_seen:
