@@ -57,7 +57,7 @@ def bench_case(key: str, folder: Path) -> tuple[str, str, object, object]:
     under ``folder``)."""
     from discrepancy.bench.cases import make_case
     from discrepancy.bench.sensor_noise import channel_range
-    from discrepancy.bench.synth import field_recording, simulate, twin_file
+    from discrepancy.bench.synth import field_recording, simulate, simulate_between, twin_file
 
     seed, index = (int(x) for x in key.split(":")[-2:])
     case = make_case(index, seed)
@@ -67,8 +67,9 @@ def bench_case(key: str, folder: Path) -> tuple[str, str, object, object]:
     planted = case.effects(scales)
     recs = []
     for sub, (s, name) in enumerate(((case.twin.seed, f"case{index}"), (case.held_out_seed, f"case{index}_held_out"))):
-        clean, _ = simulate(case.twin, planted, s, case.extra(), name=name)
-        recs.append(field_recording(clean, control_dt, case.noise, case.condition, ranges, sub, folder / key))
+        clean, _, between = simulate_between(case.twin, planted, s, case.extra(), name=name)
+        recs.append(field_recording(clean, control_dt, case.noise, case.condition, ranges, sub, folder / key,
+                                    between))
     twin = twin_file(case.twin, folder / key).as_posix() if case.condition.field_log else case.twin
     label = (f"bench seed {seed} #{index} ({case.noise.describe()}, {case.condition.describe()}): "
              + " + ".join(e.label() for e in planted))

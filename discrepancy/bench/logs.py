@@ -9,10 +9,13 @@
 
   * ``csv``: at the control step, nothing else changed (isolates the file format and the missing seed);
   * ``50hz``, ``200hz``, ``500hz``: logged at that rate: the truth between control steps is the planted twin's
-    signals interpolated cubically in time, commands are held over each control step, noise is added at the log's
-    rate (so the tool must anti-alias);
+    physics read at each of its soil refreshes (5 per control step, :func:`~discrepancy.bench.synth.simulate_between`)
+    and interpolated cubically between those readings (before that: between the control steps alone, which put no
+    relief or contact between them), commands are held over each control step, noise is added at the log's rate (so
+    the tool must anti-alias);
   * ``offset``: at the control step, the signals shifted against the commands by ``offset_s`` (positive: the signals
-    lag; cubic interpolation; rows beyond the truth are dropped at the end, held at the start);
+    lag; the truth between control steps as above; rows beyond the truth are dropped at the end, held at the
+    start);
   * ``missing``: at the control step, one compared channel dropped.
 """
 
@@ -27,6 +30,7 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 
 from discrepancy.data.channels import COMPARED
+from discrepancy.twin.spec import Between
 from scaletwin_envs.recording.importer import to_si
 from scaletwin_envs.recording.schema import COMMAND_COLUMNS
 from scaletwin_envs.signal_units import SIGNAL_UNITS
@@ -106,7 +110,7 @@ class LogData:
 
 
 def resample(time: np.ndarray, commands: np.ndarray, signals: Mapping[str, np.ndarray], cond: Condition,
-             control_dt: float) -> LogData:
+             control_dt: float, between: Between | None = None) -> LogData:
     """The true log of ``cond`` from a recording at the control step.
 
     Args:
@@ -115,9 +119,16 @@ def resample(time: np.ndarray, commands: np.ndarray, signals: Mapping[str, np.nd
         signals: SI channels at ``time``.
         cond: the condition (rate and offset are used here; dropping a channel is the writer's job).
         control_dt: the twin's control step, s.
+        between: the same channels read between the control steps too (every ``between.dt`` s from the first
+            at ``between.dt``): the truth between them is interpolated from those; None: from ``signals``.
     """
     time = np.asarray(time, float)
-    splines = {k: CubicSpline(time, np.asarray(v, float)) for k, v in signals.items()}
+    if between is not None:
+        fine = between.dt * np.arange(1, len(next(iter(between.signals.values()))) + 1)
+        splines = {k: CubicSpline(fine, np.asarray(between.signals[k], float)) if k in between.signals
+                   else CubicSpline(time, np.asarray(v, float)) for k, v in signals.items()}
+    else:
+        splines = {k: CubicSpline(time, np.asarray(v, float)) for k, v in signals.items()}
     if cond.rate_hz:
         h = 1.0 / cond.rate_hz
         t = time[0] + h * np.arange(int(np.floor((time[-1] - time[0]) / h + 1e-9)) + 1)

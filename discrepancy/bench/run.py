@@ -29,7 +29,7 @@ from discrepancy.bench.cases import Case, make_cases
 from discrepancy.bench.logs import Condition
 from discrepancy.bench.scoring import truth_pairs
 from discrepancy.bench.sensor_noise import channel_range
-from discrepancy.bench.synth import Synthetic, aligned, field_recording, simulate, twin_file
+from discrepancy.bench.synth import Synthetic, aligned, field_recording, simulate, simulate_between, twin_file
 from discrepancy.data.episode import signal_spread
 from discrepancy.effects import UNEXPLAINED, Effect, Scales
 from discrepancy.pipeline import DiagnoseOptions, Diagnosis, diagnose
@@ -137,8 +137,8 @@ def _run(case: Case, options: DiagnoseOptions | None, folder: Path) -> dict[str,
     recs = []
     for sub, (seed, name) in enumerate(((case.twin.seed, f"case{case.index}"),
                                         (case.held_out_seed, f"case{case.index}_held_out"))):
-        clean, _ = simulate(case.twin, planted, seed, case.extra(), name=name)
-        recs.append(field_recording(clean, control_dt, case.noise, cond, ranges, sub, folder))
+        clean, _, between = simulate_between(case.twin, planted, seed, case.extra(), name=name)
+        recs.append(field_recording(clean, control_dt, case.noise, cond, ranges, sub, folder, between))
     real, held = recs
     if cond.field_log:
         for r in recs:

@@ -11,6 +11,7 @@ the provenance), never the planted physics.
 from __future__ import annotations
 
 import inspect
+import itertools
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,7 +25,7 @@ from discrepancy.data.episode import EpisodeData, load_episode, signal_spread
 from discrepancy.effects import Effect
 from discrepancy.twin.env import PhysicsParams, TwinDigEnv
 from discrepancy.twin.plant import apply_sensors, plan
-from discrepancy.twin.spec import TwinSpec
+from discrepancy.twin.spec import Between, TwinSpec
 from scaletwin_envs.policies import ScriptedDigPolicy
 
 
@@ -48,12 +49,22 @@ def simulate(twin: TwinSpec, effects: Sequence[Effect], seed: int, extra: Physic
         The truth at the control step (signals after planted sensor faults; provenance: the nominal twin and
         ``seed``) and the control step, s.
     """
+    clean, control_dt, _ = simulate_between(twin, effects, seed, extra, name)
+    return clean, control_dt
+
+
+def simulate_between(twin: TwinSpec, effects: Sequence[Effect], seed: int, extra: PhysicsParams | None = None,
+                     name: str = "real") -> tuple[EpisodeData, float, Between]:
+    """:func:`simulate`, and the truth between the control steps too: the planted twin read at each of its soil
+    refreshes (``TwinDigEnv.read_between``), what a log sampled faster than the control step sees between them
+    (:func:`~discrepancy.bench.logs.resample`); the control-step truth is the same to the bit."""
     p = plan(effects, twin.soil, extra)
     env = TwinDigEnv(structure=p.structure, scale=twin.loader, soil=twin.soil, two_route_check=True,
                      **twin.env_kwargs)
     env.set_physics(p.physics)
     policy = ScriptedDigPolicy()
     policy.reset()
+    env.read_between()
     obs, _ = env.reset(seed=seed)
     commands, rows, phases, times = [], [], [], []
     done = False
@@ -72,7 +83,14 @@ def simulate(twin: TwinSpec, effects: Sequence[Effect], seed: int, extra: Physic
     signals = apply_sensors({k: np.array([r[k] for r in rows]) for k in names}, time, p.sensors)
     clean = EpisodeData(time, np.asarray(commands), signals, np.asarray(phases, dtype=object), seed, twin.loader,
                         twin.soil, dict(twin.env_kwargs), name)
-    return clean, float(env.dt)
+    parts = env.frame_skip // env.external_force_substeps
+    inside = iter(env.between or [])  # parts - 1 readings inside each control step, in order
+    merged = [r for row in rows for r in (*(s for _, s in itertools.islice(inside, parts - 1)), row)]
+    fine_dt = float(env.dt) / parts
+    fine_time = fine_dt * np.arange(1, len(merged) + 1)
+    between = Between(fine_dt, apply_sensors({k: np.array([r[k] for r in merged]) for k in names}, fine_time,
+                                             p.sensors))
+    return clean, float(env.dt), between
 
 
 def record(twin: TwinSpec, effects: Sequence[Effect], noise: float, seed: int, extra: PhysicsParams | None = None,
@@ -97,7 +115,8 @@ def record(twin: TwinSpec, effects: Sequence[Effect], noise: float, seed: int, e
 
 
 def field_recording(clean: EpisodeData, control_dt: float, noise: NoiseSpec, cond: Condition,
-                    ranges: Mapping[str, float], sub_seed: int, folder: Path | None = None) -> Synthetic:
+                    ranges: Mapping[str, float], sub_seed: int, folder: Path | None = None,
+                    between: Between | None = None) -> Synthetic:
     """A case's recording as the tool receives it under ``cond``, read through the sensors of ``noise``.
 
     Args:
@@ -108,6 +127,8 @@ def field_recording(clean: EpisodeData, control_dt: float, noise: NoiseSpec, con
         ranges: channel ranges (SI) the noise amplitudes are fractions of.
         sub_seed: distinguishes the noise of the case's recordings.
         folder: where field logs go (needed unless ``cond`` is ``native``).
+        between: the truth between the control steps (:func:`simulate_between`), which a log faster than the
+            control step or read at an offset sees; None: interpolated between the control steps.
 
     Returns:
         ``noisy`` is the in-memory recording (native) or what the tool's loader made of the log (field logs:
@@ -117,7 +138,7 @@ def field_recording(clean: EpisodeData, control_dt: float, noise: NoiseSpec, con
     Raises:
         RecordingError: the tool's loader refused the log (e.g. a rate it cannot resample yet).
     """
-    log = resample(clean.time, clean.commands, clean.signals, cond, control_dt)
+    log = resample(clean.time, clean.commands, clean.signals, cond, control_dt, between)
     channels = logged_channels(log.truth, cond) if cond.field_log else list(log.truth)
     noisy = apply_noise(noise, {k: log.truth[k] for k in channels}, log.h, control_dt, ranges, sub_seed)
     sd = {k: _control_step_sd(log.time, v, control_dt) for k, v in noisy.noise.items()}

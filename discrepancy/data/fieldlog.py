@@ -52,13 +52,14 @@ with it;
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy import optimize, signal
+from scipy import optimize, signal, sparse
 from scipy.interpolate import CubicSpline
 
 from discrepancy.data.channels import COMPARED, RecordingError
@@ -135,6 +136,8 @@ class InputReport:
         command_timing: how far a command change may lie from where the prepared commands put it, in control
             steps (0: not resampled, or every control interval's logged commands agree, so the commands switch on
             the twin's grid and are exact; see :func:`resample_commands`).
+        span_s: the log's length, s (last timestamp less the first), which the resampling's ends depend on
+            (:func:`resampling_operator`); None where not resampled.
     """
 
     original_rate_hz: float
@@ -147,6 +150,7 @@ class InputReport:
     sensor_tau: float | None = None
     warnings: tuple[str, ...] = ()
     command_timing: float = 0.0
+    span_s: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready: numbers as floats, gaps as ``{"channel", "t_start", "t_end"}`` objects."""
@@ -161,6 +165,7 @@ class InputReport:
             "sensor_tau": None if self.sensor_tau is None else float(self.sensor_tau),
             "warnings": list(self.warnings),
             "command_timing": float(self.command_timing),
+            "span_s": None if self.span_s is None else float(self.span_s),
         }
 
 
@@ -276,7 +281,7 @@ def prepare_log(time: np.ndarray, commands: np.ndarray, signals: Mapping[str, np
                         f"uniform {h:.4g} s grid before filtering")
     on_grid, timing = resample_commands(time, cmds, grid, dt)
     report = InputReport(1.0 / h, dt, True, description, tuple(gaps), missing, warnings=tuple(warnings),
-                         command_timing=timing)
+                         command_timing=timing, span_s=float(time[-1] - time[0]))
     return PreparedLog(grid, on_grid, out, resample_phases(time, phases, grid), report)
 
 
@@ -344,6 +349,55 @@ def resample_signal(time: np.ndarray, x: np.ndarray, grid: np.ndarray, dt: float
     ext = np.concatenate((2 * first - fine[pad:0:-1], fine, 2 * last - fine[-2:-pad - 2:-1]))
     smooth = signal.fftconvolve(ext, taps, mode="same")[pad:pad + len(fine)]
     return CubicSpline(fine_t, smooth)(grid)
+
+
+@functools.lru_cache(maxsize=16)
+def resampling_operator(steps: int, parts: int, control_dt: float, log_step: float, span: float
+                        ) -> sparse.csr_matrix:
+    """What resampling a log does to a signal known between its control steps, as a matrix.
+
+    A log sampled every ``log_step`` s is low-passed and read at the control steps (:func:`resample_signal`); a
+    twin's samples at those steps are not what that gives where a signal changes within a control step (a
+    cylinder reaching relief, the bucket meeting the pile: a force jumps by most of its range within one, and the
+    anti-alias filter spreads the jump over its neighbours). This is the same resampling applied to a signal read
+    every ``control_dt / parts`` s (the sample at ``(j + 1) · control_dt / parts`` s, every ``parts``-th one at a
+    control step; cubic between them), on the log's own grid (every ``log_step`` s over ``span`` s from the first
+    control step): a sparse (``steps``, ``steps · parts``) matrix, each row the weights of one control step's value
+    (within ~1e-12 of :func:`resample_signal`). Control steps past the log's end keep their own sample.
+
+    Built by resampling combs of unit samples spaced wider than the filter reaches (a few tens of resamplings,
+    whatever the length: ~0.2 s), and kept for the log's next replays (the last 16 asked for).
+    """
+    fine_dt = control_dt / parts
+    n_fine = steps * parts
+    t_fine = fine_dt * np.arange(1, n_fine + 1)
+    log_t = control_dt + log_step * np.arange(math.floor(span / log_step + 1e-9) + 1)
+    log_t = log_t[log_t <= t_fine[-1] + 1e-9 * fine_dt]
+    grid = control_dt * np.arange(1, steps + 1)
+    seen = int(np.count_nonzero(grid <= log_t[-1] + 1e-9 * control_dt)) if len(log_t) > 1 else 0
+    taps, _ = antialias_filter(log_step, control_dt)
+    # how far a unit sample reaches: the odd reflection at an end doubles the filter's half-length; both cubic
+    # interpolations decay by ~0.27 a knot (1e-12 after 20 knots)
+    reach = 2 * (len(taps) // 2) * log_step + 20 * (fine_dt + log_step)
+    comb = math.ceil(2 * reach / fine_dt) + 1
+    rows, cols, vals = [], [], []
+    if seen >= 2:
+        centre = grid[:seen] / fine_dt - 1.0  # each control step's own fine sample
+        for r in range(min(comb, n_fine)):
+            y = np.zeros(n_fine)
+            y[r::comb] = 1.0
+            out = resample_signal(log_t, CubicSpline(t_fine, y)(log_t), grid[:seen], control_dt, taps=taps)
+            tooth = r + comb * np.round((centre - r) / comb)
+            ok = (tooth >= 0) & (tooth < n_fine) & (np.abs(out) > 0.0)
+            rows.append(np.flatnonzero(ok))
+            cols.append(tooth[ok].astype(int))
+            vals.append(out[ok])
+    tail = np.arange(seen, steps)
+    rows.append(tail)
+    cols.append(tail * parts + parts - 1)
+    vals.append(np.ones(len(tail)))
+    return sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                             shape=(steps, n_fine))
 
 
 #: Degree of the local least-squares polynomial that gives a log's level at its ends (:func:`end_level`), fitted over

@@ -84,6 +84,20 @@ def _offset(ep: EpisodeData, twin: dict, notes: list[str], scale: dict[str, floa
     return offset, False
 
 
+def _resampled_alike(ep: EpisodeData, spec: TwinSpec, notes: list[str]) -> TwinSpec:
+    """``spec`` reading its signals as ``ep``'s log was resampled (``TwinSpec.log_step``, ``log_span``) where it was
+    sampled faster than the control step: the anti-alias filter spreads a change within a control step (a force
+    jumping by most of its range as a cylinder reaches relief) over its neighbours, which the twin's samples alone
+    do not (a perfect twin was up to 20–50 % of a force's range off at such rows once read between its samples,
+    where the noise of a 200–500 Hz log low-passed is a fraction of a percent)."""
+    report = ep.input_report
+    if report is None or not report.resampled or not report.span_s or not report.original_rate_hz > 0:
+        return spec
+    notes.append(f"the log was resampled from {report.original_rate_hz:.4g} Hz to the control step: the twin is "
+                 "read between its control steps too and resampled alike")
+    return dataclasses.replace(spec, log_step=1.0 / report.original_rate_hz, log_span=float(report.span_s))
+
+
 def _compared_rows(ep: EpisodeData, spec: TwinSpec, notes: list[str]) -> tuple[EpisodeData, TwinSpec]:
     """A log whose signals lead its commands (``spec.time_offset`` < 0) reads, on its last rows, the machine under
     commands logged after them: those rows are not compared (their commands become the twin's
@@ -137,8 +151,11 @@ def align(ep: EpisodeData, spec: TwinSpec, runner: Runner) -> tuple[EpisodeData,
     A log without seed: its start, a common sensor filter and a time offset fitted together on its first rows
     (:func:`estimate_start`); then each channel's own filter and what is left of the offset against the twin from
     that start, on the same rows; the offsets add up and the twin is read at the log's times
-    (``TwinSpec.time_offset``). A log with a seed: the filter and the offset against the twin from its seed."""
+    (``TwinSpec.time_offset``). A log with a seed: the filter and the offset against the twin from its seed.
+    A log resampled to the control step is compared with the twin resampled alike (``TwinSpec.log_step``) from
+    the start."""
     notes: list[str] = []
+    spec = _resampled_alike(ep, spec, notes)
     start, total, applied, offset = None, 0.0, False, None
     if ep.seed is None:
         # the start, a filter the twin does not declare and the time offset are fitted together (see

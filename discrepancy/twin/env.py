@@ -104,6 +104,10 @@ class TwinDigEnv(WheelLoaderDigEnv):
         self.physics = PhysicsParams()
         self._written: tuple[float, np.ndarray] | None = None
         self._payload_body = -1
+        #: ``(time s, signals)`` read between control steps, at each soil refresh inside one (None: not read; see
+        #: :meth:`read_between`)
+        self.between: list[tuple[float, dict[str, float]]] | None = None
+        self._block = 0
         super().__init__(**kwargs)
         self.nominal_soil = self.soil
         self._nominal = {name: getattr(self.model, name).copy() for name in
@@ -221,7 +225,26 @@ class TwinDigEnv(WheelLoaderDigEnv):
             adr = self._act_adr(c)
             self.data.act[adr] = min(max(self.data.act[adr], q + lo / k), q + hi / k)
 
+    def read_between(self, on: bool = True) -> None:
+        """From the next step on, also read the signals inside each control step, at every soil refresh after its
+        first (``external_force_substeps`` physics steps apart: 5 per control step by default), into
+        :attr:`between`, cleared here. What a log sampled faster than the control step saw between the twin's
+        samples (:func:`~discrepancy.data.fieldlog.sampling_correction`). Reading computes the forces of the state
+        reached (``mj_forward``) and changes nothing the physics goes on from: the control-step signals are the same
+        to the bit (tested)."""
+        self.between = [] if on else None
+
+    def _simulate(self, ctrl: np.ndarray) -> str | None:
+        self._block = 0
+        return super()._simulate(ctrl)
+
     def _apply_external_forces(self) -> None:
+        if self.between is not None and self._block:
+            mujoco.mj_forward(self.model, self.data)
+            mujoco.mj_rnePostConstraint(self.model, self.data)
+            self.between.append((self._t + self._block * self.external_force_substeps * self.model.opt.timestep,
+                                 self._step_signals(self._read_signals(self.soil_force()))))
+        self._block += 1
         self._clamp_windup()
         super()._apply_external_forces()
         if self.physics.edge_drag > 0.0 and self._soil_force.depth > 0.0:

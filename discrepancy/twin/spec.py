@@ -9,6 +9,7 @@ cycle would end). Envs are built once per model structure and reused.
 from __future__ import annotations
 
 import inspect
+import itertools
 import json
 import math
 from collections.abc import Sequence
@@ -20,7 +21,7 @@ import numpy as np
 
 from discrepancy.data.channels import COMPARED, ROUTE2, RecordingError
 from discrepancy.data.episode import EpisodeData
-from discrepancy.data.fieldlog import delayed, first_order_filter
+from discrepancy.data.fieldlog import antialias_filter, delayed, first_order_filter, resampling_operator
 from discrepancy.twin.env import Structure, TwinDigEnv
 from discrepancy.twin.plant import Plan, apply_sensors
 from scaletwin_envs.envs.wheel_loader_dig import WheelLoaderDigEnv
@@ -50,7 +51,10 @@ class TwinSpec:
     offset_deviations`); ``command_tail``: commands ``[lift, tilt, drive]`` the log carries after the last row
     compared, replayed after the log's own (a log whose signals lead its commands reads, on its last rows, the
     machine under commands logged later: those rows are not compared, :func:`~discrepancy.twin.align.align`, but
-    their commands drive the rows that are).
+    their commands drive the rows that are); ``log_step``, ``log_span``: s, the sampling step and the length of a
+    log resampled to the control step (0: not resampled): every twin signal is read between the control steps too
+    and resampled as the log was (:func:`~discrepancy.data.fieldlog.resampling_operator`), after the filter and
+    the offset.
     """
 
     loader: LoaderSpec
@@ -64,11 +68,21 @@ class TwinSpec:
     time_offset: float = 0.0
     offset_spread: float = 0.0
     command_tail: tuple[tuple[float, float, float], ...] = ()
+    log_step: float = 0.0
+    log_span: float = 0.0
 
     def lead_steps(self, dt: float) -> int:
         """Control steps (of ``dt`` s) by which the log's signals lead its commands: the rows at its end that read
         the machine after its last command (0 unless ``time_offset`` < 0)."""
         return math.ceil(-self.time_offset / dt - 1e-9) if self.time_offset < 0 else 0
+
+    def resampling_reach(self, dt: float) -> int:
+        """Control steps (of ``dt`` s) over which the log's resampling mixes samples, on either side (0 unless
+        resampled, :attr:`log_step`): a replay cut short differs from the whole one over that many last rows."""
+        if self.log_step <= 0.0:
+            return 0
+        taps, _ = antialias_filter(self.log_step, dt)
+        return math.ceil((len(taps) // 2) * self.log_step / dt) + 1
 
     def channel_taus(self, names: Sequence[str]) -> np.ndarray:
         """The sensor-filter time constant (s) applied to each of ``names`` (0: not filtered)."""
@@ -132,14 +146,16 @@ class TwinSpec:
                       for d in doc.get("start_draws", []))
         tail = tuple((float(a), float(b), float(c)) for a, b, c in doc.get("command_tail", []))
         return cls(loader, soil, kwargs, int(seed), start, float(doc.get("sensor_tau", 0.0)), taus, draws,
-                   float(doc.get("time_offset", 0.0)), float(doc.get("offset_spread", 0.0)), tail)
+                   float(doc.get("time_offset", 0.0)), float(doc.get("offset_spread", 0.0)), tail,
+                   float(doc.get("log_step", 0.0)), float(doc.get("log_span", 0.0)))
 
     def to_dict(self) -> dict[str, Any]:
         return {"scale": self.loader.to_dict(), "soil": self.soil.to_dict(), "env_kwargs": dict(self.env_kwargs),
                 "seed": self.seed, "start": dict(self.start), "sensor_tau": self.sensor_tau,
                 "sensor_taus": dict(self.sensor_taus), "start_draws": [dict(d) for d in self.start_draws],
                 "time_offset": self.time_offset, "offset_spread": self.offset_spread,
-                "command_tail": [list(c) for c in self.command_tail]}
+                "command_tail": [list(c) for c in self.command_tail], "log_step": self.log_step,
+                "log_span": self.log_span}
 
 
 def _scale(value: Any) -> float | str:
@@ -156,13 +172,26 @@ def _physics_kwargs(kwargs: dict[str, Any]) -> dict[str, Any]:
     return {k: v for k, v in kwargs.items() if k in accepted and k not in _IGNORED}
 
 
+@dataclass(frozen=True)
+class Between:
+    """A replay's signals read between its control steps too (:meth:`TwinDigEnv.read_between
+    <discrepancy.twin.env.TwinDigEnv.read_between>`): every ``dt`` s (a whole fraction of the control step), the
+    sample at ``dt · (j + 1)`` s after the start, so that every ``control_dt / dt``-th one is a control-step sample;
+    SI signals by name, after the same sensor models, filter and offset as the control-step ones."""
+
+    dt: float
+    signals: dict[str, np.ndarray]
+
+
 @dataclass
 class SimResult:
-    """A replay: SI signals by name (steps,), phases, and the first physics error (None when it ran through)."""
+    """A replay: SI signals by name (steps,), phases, the first physics error (None when it ran through), and, where
+    asked for, the signals between the control steps (:class:`Between`)."""
 
     signals: dict[str, np.ndarray]
     phases: np.ndarray
     error: str | None = None
+    between: Between | None = None
 
 
 class Simulator:
@@ -185,9 +214,11 @@ class Simulator:
         return float(self.env(Structure()).dt)
 
     def run(self, commands: np.ndarray, plan: Plan | None = None, two_routes: bool | None = None,
-            start: tuple[tuple[str, float], ...] | None = None) -> SimResult:
+            start: tuple[tuple[str, float], ...] | None = None, between: bool = False) -> SimResult:
         """Replay ``commands`` (steps, 3) with ``plan`` from the twin's seed and start (``start`` overrides the
-        twin's); signals after sensor models, the twin's sensor filter and its time offset.
+        twin's); signals after sensor models, the twin's sensor filter and its time offset, and, for a resampled
+        log (:attr:`TwinSpec.log_step`), its resampling; with ``between``, also read between the control steps
+        (:attr:`SimResult.between`, None if the replay did not run through).
 
         A log whose signals lead its commands (``time_offset`` < 0) ends with rows read after its last command:
         the replay runs on over that span with the twin's :attr:`~TwinSpec.command_tail` (the commands logged
@@ -203,6 +234,8 @@ class Simulator:
         env = self.env(plan.structure, two_routes)
         env.set_physics(plan.physics)
         options = dict(self.twin.start if start is None else start)
+        resampled = self.twin.log_step > 0.0
+        env.read_between(between or resampled)
         try:
             env.reset(seed=self.twin.seed, options=options or None)
         except ValueError as exc:  # a start the machine cannot take (a cylinder beyond its stroke): a failed replay
@@ -223,18 +256,35 @@ class Simulator:
         names = [k for k in (*COMPARED, *ROUTE2) if rows and k in rows[0]]
         # a replay that diverged only in the steps after the log's end holds its last sample over them
         hold = len(rows) >= n
-        signals = {k: _padded([r[k] for r in rows], n + lead, hold) for k in names}
-        time = env.dt * np.arange(1, n + lead + 1)
-        signals = apply_sensors(signals, time, plan.sensors) if plan.sensors else signals
-        if self.twin.sensor_tau > 0.0 or self.twin.sensor_taus:
-            own = dict(self.twin.sensor_taus)
-            signals = {k: first_order_filter(v, env.dt, own.get(k, self.twin.sensor_tau)) for k, v in signals.items()}
-        if self.twin.time_offset:
-            signals = {k: delayed(v, env.dt, self.twin.time_offset)[:n] for k, v in signals.items()}
+        signals = self._sensed({k: _padded([r[k] for r in rows], n + lead, hold) for k in names}, env.dt, n, plan)
+        fine = None
+        if env.between is not None and error is None and len(rows) == n + lead:
+            parts = env.frame_skip // env.external_force_substeps
+            inside = iter(env.between)  # parts - 1 readings inside each control step, in order
+            merged = [r for row in rows for r in (*(s for _, s in itertools.islice(inside, parts - 1)), row)]
+            fine = Between(env.dt / parts, self._sensed({k: np.array([r[k] for r in merged]) for k in names},
+                                                        env.dt / parts, n * parts, plan))
+            if resampled:
+                op = resampling_operator(n, parts, float(env.dt), self.twin.log_step, self.twin.log_span)
+                signals = {k: op @ v for k, v in fine.signals.items()}
+        env.read_between(False)
+        fine = fine if between else None
         phases = phases[:n]
         if hold:
             error = None
-        return SimResult(signals, np.asarray(phases + ["error"] * (n - len(phases)), dtype=object), error)
+        return SimResult(signals, np.asarray(phases + ["error"] * (n - len(phases)), dtype=object), error, fine)
+
+    def _sensed(self, signals: dict[str, np.ndarray], dt: float, n: int, plan: Plan) -> dict[str, np.ndarray]:
+        """``signals`` sampled every ``dt`` s (the first at ``dt``) through ``plan``'s sensor models, the twin's
+        sensor filters and its time offset, cut to their first ``n`` samples where the offset read past them."""
+        time = dt * np.arange(1, len(next(iter(signals.values()), ())) + 1)
+        signals = apply_sensors(signals, time, plan.sensors) if plan.sensors else signals
+        if self.twin.sensor_tau > 0.0 or self.twin.sensor_taus:
+            own = dict(self.twin.sensor_taus)
+            signals = {k: first_order_filter(v, dt, own.get(k, self.twin.sensor_tau)) for k, v in signals.items()}
+        if self.twin.time_offset:
+            signals = {k: delayed(v, dt, self.twin.time_offset)[:n] for k, v in signals.items()}
+        return signals
 
 
 def _padded(values: list[float], n: int, hold: bool = False) -> np.ndarray:

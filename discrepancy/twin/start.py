@@ -235,14 +235,17 @@ class _Fit:
 
     With ``lead`` (control steps) every replay runs that many steps past the fitted rows (as far as the log's
     commands go), so that a twin read early (a log whose signals lead its commands) compares its own motion with
-    the last fitted rows rather than its last replayed sample held (see :data:`LEAD_MARGIN`)."""
+    the last fitted rows rather than its last replayed sample held (see :data:`LEAD_MARGIN`); a resampled log's
+    replays run on as far as its resampling reaches (``TwinSpec.resampling_reach``)."""
 
     def __init__(self, ep: EpisodeData, runner: Runner, rows: int, profile_filter: bool = False,
                  lead: int = 0) -> None:
         names = [s for s in MOTION if s in ep.signals and np.all(np.isfinite(ep.signals[s]))] or \
             [s for s in COMPARED if s in ep.signals and np.all(np.isfinite(ep.signals[s]))]
         self.ep, self.runner, self.rows, self.names = ep, runner, rows, names
-        self.replayed = min(len(ep), rows + max(lead, 0))
+        # a resampled log's twin is resampled alike, which mixes each row with its neighbours: replayed that much
+        # further, the fitted rows read what they would in the whole replay
+        self.replayed = min(len(ep), rows + max(lead, 0) + runner.twin.resampling_reach(ep.dt))
         self.scale = np.array([max(0.01 * float(np.ptp(ep.signals[s])), 1e-12) for s in names])
         self.real = np.stack([ep.signals[s][:rows] for s in names])
         self.profile_filter = profile_filter

@@ -433,9 +433,10 @@ class WheelLoaderDigEnv(LoaderEnv):
         loaded = self.dig.fill() > 0.02
         return classify(depth > 0.0, curl, self.signals["travel_speed"], loaded, self.length)
 
-    def _step_signals(self) -> dict[str, float]:
-        """The step's signals: those read from the physics plus the load and the cylinder states."""
-        sig = dict(self.signals)
+    def _step_signals(self, read: Mapping[str, float] | None = None) -> dict[str, float]:
+        """The step's signals: those read from the physics (``read``, default: the last read,
+        :attr:`signals`) plus the load and the cylinder states now."""
+        sig = dict(self.signals if read is None else read)
         sig["m_load"] = self.dig.load_mass
         sig["lift_extension"], sig["lift_speed"] = self.cylinder_state("lift")
         sig["tilt_extension"], sig["tilt_speed"] = self.cylinder_state("tilt")

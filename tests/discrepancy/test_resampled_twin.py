@@ -1,0 +1,79 @@
+"""A log sampled faster than the control step against a twin read between its control steps and resampled alike.
+
+Physical meaning: reading the twin between its control steps is a measurement, so it must not change the physics
+(the control-step signals stay the same to the bit); a perfect twin seen through the same resampling as a 500 Hz
+log of the same machine gives that log back (two routes to the same samples), while its control-step samples
+alone miss what happens inside a step (a force jumping as a cylinder reaches relief).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from scipy.interpolate import CubicSpline
+
+from discrepancy.bench.logs import Condition, resample
+from discrepancy.bench.synth import simulate_between
+from discrepancy.data.channels import COMPARED
+from discrepancy.data.fieldlog import prepare_log, resample_signal, resampling_operator
+from discrepancy.twin.spec import Simulator, TwinSpec
+
+
+@pytest.fixture(scope="module")
+def truth(twin: TwinSpec):
+    return simulate_between(twin, [], twin.seed)
+
+
+def test_reading_between_the_control_steps_changes_nothing(twin: TwinSpec, truth) -> None:
+    clean, dt, between = truth
+    sim = Simulator(twin)
+    plain, read = sim.run(clean.commands), sim.run(clean.commands, between=True)
+    assert plain.between is None and read.between is not None
+    parts = round(dt / read.between.dt)
+    assert parts == 5 and abs(parts * read.between.dt - dt) < 1e-12
+    for k in ("F21", "Pf_lift", "lift_extension", "a1"):
+        assert np.array_equal(plain.signals[k], read.signals[k])  # the same physics, to the bit
+        assert np.array_equal(read.between.signals[k][parts - 1::parts], read.signals[k])
+        assert np.array_equal(read.signals[k], clean.signals[k])  # the closed loop's, replayed
+        assert np.array_equal(read.between.signals[k], between.signals[k])  # and the generator's in between
+
+
+@pytest.mark.parametrize(("steps", "dt", "h", "tail"), [(120, 0.1, 0.002, 0.04), (90, 0.0378, 0.02, 0.0),
+                                                       (40, 0.1, 0.005, 0.5)])
+def test_the_resampling_operator_is_the_logs_resampling(steps: int, dt: float, h: float, tail: float) -> None:
+    parts = 5
+    span = (steps - 1) * dt - tail  # a log that ends before the last control step leaves it as it is
+    y = np.cumsum(np.random.default_rng(steps).standard_normal(steps * parts))
+    fine_t = dt / parts * np.arange(1, steps * parts + 1)
+    log_t = dt + h * np.arange(int(np.floor(span / h + 1e-9)) + 1)
+    grid = dt * np.arange(1, steps + 1)
+    seen = grid <= log_t[-1] + 1e-9
+    direct = resample_signal(log_t, CubicSpline(fine_t, y)(log_t), grid[seen], dt)
+    op = resampling_operator(steps, parts, dt, h, span)
+    assert op.shape == (steps, steps * parts)
+    got = op @ y
+    assert np.max(np.abs(got[seen] - direct)) < 1e-10 * np.ptp(y)
+    assert np.array_equal(got[~seen], y[parts - 1::parts][~seen])
+    # each row weighs a few control steps either side of its own, and a constant stays itself
+    assert np.allclose(op @ np.ones(steps * parts), 1.0, atol=1e-9)
+
+
+def test_a_perfect_twin_resampled_alike_gives_a_fast_log_back(twin: TwinSpec, truth) -> None:
+    clean, dt, between = truth
+    signals = {k: clean.signals[k] for k in COMPARED if k in clean.signals}
+    log = resample(clean.time, clean.commands, signals, Condition("500hz", rate_hz=500.0), dt, between)
+    prepared = prepare_log(log.time, log.commands, log.truth, np.full(len(log.time), "", dtype=object), dt)
+    report = prepared.report
+    assert report.resampled and report.span_s == pytest.approx(log.time[-1] - log.time[0])
+    n = len(prepared.time)
+    alike = dataclasses.replace(twin, log_step=1.0 / report.original_rate_hz, log_span=report.span_s)
+    assert TwinSpec.from_dict(alike.to_dict()) == alike  # what a saved twin file carries
+    seen = Simulator(alike).run(prepared.commands)
+    plain = Simulator(twin).run(prepared.commands)
+    worst_alike = max(np.max(np.abs(seen.signals[k] - prepared.signals[k][:n])) / np.ptp(signals[k]) for k in signals)
+    worst_plain = max(np.max(np.abs(plain.signals[k] - prepared.signals[k][:n])) / np.ptp(signals[k])
+                      for k in signals)
+    assert worst_alike < 1e-6
+    assert worst_plain > 0.05  # the control-step samples alone: a jump inside a step spread over its neighbours
