@@ -14,8 +14,8 @@
     relief or contact between them), commands are held over each control step, noise is added at the log's rate (so
     the tool must anti-alias);
   * ``offset``: at the control step, the signals shifted against the commands by ``offset_s`` (positive: the signals
-    lag; the truth between control steps as above; rows beyond the truth are dropped at the end, held at the
-    start);
+    lag; cubic interpolation between the control steps, as the tool's twin is read at an offset: not yet the
+    physics between them; rows beyond the truth are dropped at the end, held at the start);
   * ``missing``: at the control step, one compared channel dropped.
 """
 

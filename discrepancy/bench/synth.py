@@ -11,7 +11,6 @@ the provenance), never the planted physics.
 from __future__ import annotations
 
 import inspect
-import itertools
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -83,10 +82,7 @@ def simulate_between(twin: TwinSpec, effects: Sequence[Effect], seed: int, extra
     signals = apply_sensors({k: np.array([r[k] for r in rows]) for k in names}, time, p.sensors)
     clean = EpisodeData(time, np.asarray(commands), signals, np.asarray(phases, dtype=object), seed, twin.loader,
                         twin.soil, dict(twin.env_kwargs), name)
-    parts = env.frame_skip // env.external_force_substeps
-    inside = iter(env.between or [])  # parts - 1 readings inside each control step, in order
-    merged = [r for row in rows for r in (*(s for _, s in itertools.islice(inside, parts - 1)), row)]
-    fine_dt = float(env.dt) / parts
+    fine_dt, merged = env.readings(rows)
     fine_time = fine_dt * np.arange(1, len(merged) + 1)
     between = Between(fine_dt, apply_sensors({k: np.array([r[k] for r in merged]) for k in names}, fine_time,
                                              p.sensors))
@@ -128,7 +124,7 @@ def field_recording(clean: EpisodeData, control_dt: float, noise: NoiseSpec, con
         sub_seed: distinguishes the noise of the case's recordings.
         folder: where field logs go (needed unless ``cond`` is ``native``).
         between: the truth between the control steps (:func:`simulate_between`), which a log faster than the
-            control step or read at an offset sees; None: interpolated between the control steps.
+            control step sees; None: interpolated between the control steps (so is an offset log's).
 
     Returns:
         ``noisy`` is the in-memory recording (native) or what the tool's loader made of the log (field logs:
@@ -138,7 +134,9 @@ def field_recording(clean: EpisodeData, control_dt: float, noise: NoiseSpec, con
     Raises:
         RecordingError: the tool's loader refused the log (e.g. a rate it cannot resample yet).
     """
-    log = resample(clean.time, clean.commands, clean.signals, cond, control_dt, between)
+    # between the control steps, the physics for a log sampled faster; an offset log at the control step is still
+    # read from a cubic through the control samples (as the tool's twin reads it, ``fieldlog.delayed``)
+    log = resample(clean.time, clean.commands, clean.signals, cond, control_dt, between if cond.rate_hz else None)
     channels = logged_channels(log.truth, cond) if cond.field_log else list(log.truth)
     noisy = apply_noise(noise, {k: log.truth[k] for k in channels}, log.h, control_dt, ranges, sub_seed)
     sd = {k: _control_step_sd(log.time, v, control_dt) for k, v in noisy.noise.items()}

@@ -16,8 +16,9 @@ servo exactly (tested; the registered env uses the constraint servo, see :class:
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -233,6 +234,14 @@ class TwinDigEnv(WheelLoaderDigEnv):
         reached (``mj_forward``) and changes nothing the physics goes on from: the control-step signals are the same
         to the bit (tested)."""
         self.between = [] if on else None
+
+    def readings(self, rows: Sequence[Mapping[str, float]]) -> tuple[float, list[Mapping[str, float]]]:
+        """``rows`` (each control step's signals since the reset, in order) with the readings taken between them
+        (:meth:`read_between`) in their places: the step between readings (s) and every reading in time order."""
+        parts = self.frame_skip // self.external_force_substeps
+        inside = iter(self.between or [])  # parts - 1 readings inside each control step, in order
+        merged = [r for row in rows for r in (*(s for _, s in itertools.islice(inside, parts - 1)), row)]
+        return float(self.dt) / parts, merged
 
     def _simulate(self, ctrl: np.ndarray) -> str | None:
         self._block = 0

@@ -9,7 +9,6 @@ cycle would end). Envs are built once per model structure and reused.
 from __future__ import annotations
 
 import inspect
-import itertools
 import json
 import math
 from collections.abc import Sequence
@@ -259,11 +258,10 @@ class Simulator:
         signals = self._sensed({k: _padded([r[k] for r in rows], n + lead, hold) for k in names}, env.dt, n, plan)
         fine = None
         if env.between is not None and error is None and len(rows) == n + lead:
-            parts = env.frame_skip // env.external_force_substeps
-            inside = iter(env.between)  # parts - 1 readings inside each control step, in order
-            merged = [r for row in rows for r in (*(s for _, s in itertools.islice(inside, parts - 1)), row)]
-            fine = Between(env.dt / parts, self._sensed({k: np.array([r[k] for r in merged]) for k in names},
-                                                        env.dt / parts, n * parts, plan))
+            fine_dt, merged = env.readings(rows)
+            parts = round(env.dt / fine_dt)
+            fine = Between(fine_dt, self._sensed({k: np.array([r[k] for r in merged]) for k in names}, fine_dt,
+                                                 n * parts, plan))
             if resampled:
                 op = resampling_operator(n, parts, float(env.dt), self.twin.log_step, self.twin.log_span)
                 signals = {k: op @ v for k, v in fine.signals.items()}
