@@ -339,6 +339,12 @@ def resample_signal(time: np.ndarray, x: np.ndarray, grid: np.ndarray, dt: float
     fine_t, fine = _uniform(time, np.asarray(x, dtype=np.float64), h)
     if taps is None:
         taps, _ = antialias_filter(h, dt)
+    return CubicSpline(fine_t, _antialiased(fine[:, None], h, dt, taps)[:, 0])(grid)
+
+
+def _antialiased(fine: np.ndarray, h: float, dt: float, taps: np.ndarray) -> np.ndarray:
+    """Columns of ``fine`` (samples every ``h`` s × signals) through the anti-alias FIR ``taps``, centred, each
+    column reflected oddly through its end levels (:func:`resample_signal`)."""
     pad = min(len(taps) // 2, len(fine) - 1)
     # odd reflection through each end's level (scipy's filtfilt padding, but through a local fit rather than the end
     # sample): keeps the end's level and slope, so a smooth signal stays exact up to the ends, and the end rows do
@@ -347,14 +353,17 @@ def resample_signal(time: np.ndarray, x: np.ndarray, grid: np.ndarray, dt: float
     span = min(pad, max(round(dt / h), 1))  # samples in one control step
     first, last = end_level(fine, span), end_level(fine[::-1], span)
     ext = np.concatenate((2 * first - fine[pad:0:-1], fine, 2 * last - fine[-2:-pad - 2:-1]))
-    smooth = signal.fftconvolve(ext, taps, mode="same")[pad:pad + len(fine)]
-    return CubicSpline(fine_t, smooth)(grid)
+    return signal.fftconvolve(ext, taps[:, None], mode="same", axes=0)[pad:pad + len(fine)]
 
 
-@functools.lru_cache(maxsize=16)
-def resampling_operator(steps: int, parts: int, control_dt: float, log_step: float, span: float
-                        ) -> sparse.csr_matrix:
-    """What resampling a log does to a signal known between its control steps, as a matrix.
+#: Columns resampled at once while building :func:`resampling_operator` (memory: log samples × this × 8 bytes each).
+OPERATOR_BATCH = 64
+
+
+@functools.lru_cache(maxsize=64)
+def resampling_operator(steps: int, parts: int, control_dt: float, log_step: float, span: float,
+                        tau: float = 0.0) -> sparse.csr_matrix:
+    """What a log's sensor filter and its resampling do to a signal known between its control steps, as a matrix.
 
     A log sampled every ``log_step`` s is low-passed and read at the control steps (:func:`resample_signal`); a
     twin's samples at those steps are not what that gives where a signal changes within a control step (a
@@ -362,11 +371,14 @@ def resampling_operator(steps: int, parts: int, control_dt: float, log_step: flo
     anti-alias filter spreads the jump over its neighbours). This is the same resampling applied to a signal read
     every ``control_dt / parts`` s (the sample at ``(j + 1) · control_dt / parts`` s, every ``parts``-th one at a
     control step; cubic between them), on the log's own grid (every ``log_step`` s over ``span`` s from the first
-    control step): a sparse (``steps``, ``steps · parts``) matrix, each row the weights of one control step's value
-    (within ~1e-12 of :func:`resample_signal`). Control steps past the log's end keep their own sample.
+    control step), after a first-order sensor filter of time constant ``tau`` s on that grid where ``tau`` > 0
+    (settled on the first sample; as a sensor filters the signal itself, not its readings: filtered between the
+    readings instead, an acceleration read every 24 ms came out up to its whole range off a 0.16 s filter's):
+    a sparse (``steps``, ``steps · parts``) matrix, each row the weights of one control step's value (within
+    ~1e-12 of the filter and :func:`resample_signal`). Control steps past the log's end keep their own sample.
 
-    Built by resampling combs of unit samples spaced wider than the filter reaches (a few tens of resamplings,
-    whatever the length: ~0.2 s), and kept for the log's next replays (the last 16 asked for).
+    Built by resampling combs of unit samples spaced wider than the filters reach (0.1–1 s, a filter's memory
+    20 τ more), :data:`OPERATOR_BATCH` at a time, and kept for the log's next replays.
     """
     fine_dt = control_dt / parts
     n_fine = steps * parts
@@ -376,22 +388,28 @@ def resampling_operator(steps: int, parts: int, control_dt: float, log_step: flo
     grid = control_dt * np.arange(1, steps + 1)
     seen = int(np.count_nonzero(grid <= log_t[-1] + 1e-9 * control_dt)) if len(log_t) > 1 else 0
     taps, _ = antialias_filter(log_step, control_dt)
-    # how far a unit sample reaches: the odd reflection at an end doubles the filter's half-length; both cubic
-    # interpolations decay by ~0.27 a knot (1e-12 after 20 knots)
-    reach = 2 * (len(taps) // 2) * log_step + 20 * (fine_dt + log_step)
-    comb = math.ceil(2 * reach / fine_dt) + 1
+    # how far a unit sample reaches: the odd reflection at an end doubles the FIR's half-length; both cubic
+    # interpolations decay by ~0.27 a knot (1e-12 after 20 knots); the sensor filter by 1e-9 after 20.7 τ
+    reach = 2 * (len(taps) // 2) * log_step + 20 * (fine_dt + log_step) + 20.7 * max(tau, 0.0)
+    comb = min(math.ceil(2 * reach / fine_dt) + 1, n_fine)
     rows, cols, vals = [], [], []
     if seen >= 2:
         centre = grid[:seen] / fine_dt - 1.0  # each control step's own fine sample
-        for r in range(min(comb, n_fine)):
-            y = np.zeros(n_fine)
-            y[r::comb] = 1.0
-            out = resample_signal(log_t, CubicSpline(t_fine, y)(log_t), grid[:seen], control_dt, taps=taps)
-            tooth = r + comb * np.round((centre - r) / comb)
-            ok = (tooth >= 0) & (tooth < n_fine) & (np.abs(out) > 0.0)
-            rows.append(np.flatnonzero(ok))
-            cols.append(tooth[ok].astype(int))
-            vals.append(out[ok])
+        for first in range(0, comb, OPERATOR_BATCH):
+            offsets = np.arange(first, min(first + OPERATOR_BATCH, comb))
+            y = np.zeros((n_fine, len(offsets)))
+            for c, r in enumerate(offsets):
+                y[r::comb, c] = 1.0
+            x = CubicSpline(t_fine, y, axis=0)(log_t)
+            if tau > 0.0:
+                x = first_order_filter(x.T, log_step, tau).T
+            out = CubicSpline(log_t, _antialiased(x, log_step, control_dt, taps), axis=0)(grid[:seen])
+            for c, r in enumerate(offsets):
+                tooth = r + comb * np.round((centre - r) / comb)
+                ok = (tooth >= 0) & (tooth < n_fine) & (np.abs(out[:, c]) > 0.0)
+                rows.append(np.flatnonzero(ok))
+                cols.append(tooth[ok].astype(int))
+                vals.append(out[ok, c])
     tail = np.arange(seen, steps)
     rows.append(tail)
     cols.append(tail * parts + parts - 1)
@@ -407,15 +425,16 @@ def resampling_operator(steps: int, parts: int, control_dt: float, log_step: flo
 END_DEGREE = 2
 
 
-def end_level(x: np.ndarray, span: int) -> float:
-    """The level of ``x`` (signal units) at its first sample from a least-squares polynomial of degree
-    :data:`END_DEGREE` over its first ``span + 1`` samples (the sample itself when too few): a smooth signal's value,
-    with the noise of one sample averaged down."""
+def end_level(x: np.ndarray, span: int) -> float | np.ndarray:
+    """The level of ``x`` (signal units; samples along the first axis, one signal per column) at its first sample
+    from a least-squares polynomial of degree :data:`END_DEGREE` over its first ``span + 1`` samples (the sample
+    itself when too few): a smooth signal's value, with the noise of one sample averaged down."""
     n = min(span + 1, len(x))
     if n < 2 * (END_DEGREE + 1):
-        return float(x[0])
+        return float(x[0]) if x.ndim == 1 else x[0].copy()
     k = np.arange(n, dtype=np.float64) / n
-    return float(np.polynomial.polynomial.polyfit(k, x[:n], END_DEGREE)[0])
+    level = np.polynomial.polynomial.polyfit(k, x[:n], END_DEGREE)[0]
+    return float(level) if x.ndim == 1 else level
 
 
 def resample_commands(time: np.ndarray, commands: np.ndarray, grid: np.ndarray, dt: float

@@ -51,9 +51,8 @@ class TwinSpec:
     compared, replayed after the log's own (a log whose signals lead its commands reads, on its last rows, the
     machine under commands logged later: those rows are not compared, :func:`~discrepancy.twin.align.align`, but
     their commands drive the rows that are); ``log_step``, ``log_span``: s, the sampling step and the length of a
-    log resampled to the control step (0: not resampled): every twin signal is read between the control steps too
-    and resampled as the log was (:func:`~discrepancy.data.fieldlog.resampling_operator`), after the filter and
-    the offset.
+    log resampled to the control step (0: not resampled): every twin signal is read between the control steps too,
+    then offset, filtered and resampled as the log was (:func:`~discrepancy.data.fieldlog.resampling_operator`).
     """
 
     loader: LoaderSpec
@@ -225,15 +224,18 @@ class Simulator:
         sample as if the machine had stopped there."""
         plan = plan or Plan()
         n = len(commands)
+        resampled = self.twin.log_step > 0.0 and n > 0
         lead = self.twin.lead_steps(self.control_dt) if n else 0
-        if lead:
+        # a resampled log runs on to its last sample, up to a control step past the last row: the anti-alias filter
+        # of that row reads it, so the replay runs on as far (the last command held)
+        past = max(lead, math.ceil(1.0 + self.twin.log_span / self.control_dt - 1e-9) - n) if resampled else lead
+        if past:
             tail = np.asarray(self.twin.command_tail[:lead], dtype=float).reshape(-1, 3)
-            held = np.repeat(tail[-1:] if len(tail) else np.asarray(commands)[-1:], lead - len(tail), axis=0)
+            held = np.repeat(tail[-1:] if len(tail) else np.asarray(commands)[-1:], past - len(tail), axis=0)
             commands = np.concatenate((commands, tail, held))
         env = self.env(plan.structure, two_routes)
         env.set_physics(plan.physics)
         options = dict(self.twin.start if start is None else start)
-        resampled = self.twin.log_step > 0.0
         env.read_between(between or resampled)
         try:
             env.reset(seed=self.twin.seed, options=options or None)
@@ -255,34 +257,37 @@ class Simulator:
         names = [k for k in (*COMPARED, *ROUTE2) if rows and k in rows[0]]
         # a replay that diverged only in the steps after the log's end holds its last sample over them
         hold = len(rows) >= n
-        signals = self._sensed({k: _padded([r[k] for r in rows], n + lead, hold) for k in names}, env.dt, n, plan)
+        signals = self._sensed({k: _padded([r[k] for r in rows], n + past, hold) for k in names}, env.dt, n, plan)
         fine = None
-        if env.between is not None and error is None and len(rows) == n + lead:
+        if env.between is not None and error is None and len(rows) == n + past:
             fine_dt, merged = env.readings(rows)
             parts = round(env.dt / fine_dt)
-            fine = Between(fine_dt, self._sensed({k: np.array([r[k] for r in merged]) for k in names}, fine_dt,
-                                                 n * parts, plan))
-            if resampled:
-                op = resampling_operator(n, parts, float(env.dt), self.twin.log_step, self.twin.log_span)
-                signals = {k: op @ v for k, v in fine.signals.items()}
+            read = {k: np.array([r[k] for r in merged]) for k in names}
+            fine = Between(fine_dt, self._sensed(read, fine_dt, n * parts, plan)) if between else None
+            if resampled:  # the sensor filter acts on the signal between the readings, on the log's grid
+                taus = dict(zip(names, self.twin.channel_taus(names), strict=True))
+                unfiltered = self._sensed(read, fine_dt, (n + past) * parts, plan, filtered=False)
+                signals = {k: (resampling_operator(n + past, parts, float(env.dt), self.twin.log_step,
+                                                   self.twin.log_span, float(taus[k])) @ v)[:n]
+                           for k, v in unfiltered.items()}
         env.read_between(False)
-        fine = fine if between else None
         phases = phases[:n]
         if hold:
             error = None
         return SimResult(signals, np.asarray(phases + ["error"] * (n - len(phases)), dtype=object), error, fine)
 
-    def _sensed(self, signals: dict[str, np.ndarray], dt: float, n: int, plan: Plan) -> dict[str, np.ndarray]:
+    def _sensed(self, signals: dict[str, np.ndarray], dt: float, n: int, plan: Plan, filtered: bool = True
+                ) -> dict[str, np.ndarray]:
         """``signals`` sampled every ``dt`` s (the first at ``dt``) through ``plan``'s sensor models, the twin's
-        sensor filters and its time offset, cut to their first ``n`` samples where the offset read past them."""
+        sensor filters (unless not ``filtered``) and its time offset, cut to their first ``n`` samples."""
         time = dt * np.arange(1, len(next(iter(signals.values()), ())) + 1)
         signals = apply_sensors(signals, time, plan.sensors) if plan.sensors else signals
-        if self.twin.sensor_tau > 0.0 or self.twin.sensor_taus:
+        if filtered and (self.twin.sensor_tau > 0.0 or self.twin.sensor_taus):
             own = dict(self.twin.sensor_taus)
             signals = {k: first_order_filter(v, dt, own.get(k, self.twin.sensor_tau)) for k, v in signals.items()}
         if self.twin.time_offset:
-            signals = {k: delayed(v, dt, self.twin.time_offset)[:n] for k, v in signals.items()}
-        return signals
+            signals = {k: delayed(v, dt, self.twin.time_offset) for k, v in signals.items()}
+        return {k: v[:n] for k, v in signals.items()}
 
 
 def _padded(values: list[float], n: int, hold: bool = False) -> np.ndarray:

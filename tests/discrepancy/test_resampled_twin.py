@@ -17,7 +17,7 @@ from scipy.interpolate import CubicSpline
 from discrepancy.bench.logs import Condition, resample
 from discrepancy.bench.synth import simulate_between
 from discrepancy.data.channels import COMPARED
-from discrepancy.data.fieldlog import prepare_log, resample_signal, resampling_operator
+from discrepancy.data.fieldlog import first_order_filter, prepare_log, resample_signal, resampling_operator
 from discrepancy.twin.spec import Simulator, TwinSpec
 
 
@@ -40,9 +40,11 @@ def test_reading_between_the_control_steps_changes_nothing(twin: TwinSpec, truth
         assert np.array_equal(read.between.signals[k], between.signals[k])  # and the generator's in between
 
 
-@pytest.mark.parametrize(("steps", "dt", "h", "tail"), [(120, 0.1, 0.002, 0.04), (90, 0.0378, 0.02, 0.0),
-                                                       (40, 0.1, 0.005, 0.5)])
-def test_the_resampling_operator_is_the_logs_resampling(steps: int, dt: float, h: float, tail: float) -> None:
+@pytest.mark.parametrize(("steps", "dt", "h", "tail", "tau"), [
+    (120, 0.1, 0.002, 0.04, 0.0), (90, 0.0378, 0.02, 0.0, 0.0), (40, 0.1, 0.005, 0.5, 0.0),
+    (120, 0.1, 0.002, 0.0, 0.15)])
+def test_the_resampling_operator_is_the_logs_resampling(steps: int, dt: float, h: float, tail: float,
+                                                        tau: float) -> None:
     parts = 5
     span = (steps - 1) * dt - tail  # a log that ends before the last control step leaves it as it is
     y = np.cumsum(np.random.default_rng(steps).standard_normal(steps * parts))
@@ -50,8 +52,10 @@ def test_the_resampling_operator_is_the_logs_resampling(steps: int, dt: float, h
     log_t = dt + h * np.arange(int(np.floor(span / h + 1e-9)) + 1)
     grid = dt * np.arange(1, steps + 1)
     seen = grid <= log_t[-1] + 1e-9
-    direct = resample_signal(log_t, CubicSpline(fine_t, y)(log_t), grid[seen], dt)
-    op = resampling_operator(steps, parts, dt, h, span)
+    sensed = CubicSpline(fine_t, y)(log_t)
+    sensed = first_order_filter(sensed, h, tau) if tau else sensed  # the sensor filters the signal, then it is logged
+    direct = resample_signal(log_t, sensed, grid[seen], dt)
+    op = resampling_operator(steps, parts, dt, h, span, tau)
     assert op.shape == (steps, steps * parts)
     got = op @ y
     assert np.max(np.abs(got[seen] - direct)) < 1e-10 * np.ptp(y)
@@ -60,20 +64,32 @@ def test_the_resampling_operator_is_the_logs_resampling(steps: int, dt: float, h
     assert np.allclose(op @ np.ones(steps * parts), 1.0, atol=1e-9)
 
 
-def test_a_perfect_twin_resampled_alike_gives_a_fast_log_back(twin: TwinSpec, truth) -> None:
+@pytest.mark.parametrize("tau", [0.0, 0.16])
+def test_a_perfect_twin_resampled_alike_gives_a_fast_log_back(twin: TwinSpec, truth, tau: float) -> None:
+    """Also through a sensor filter (each channel's signal filtered as it is, then logged at 500 Hz): a filter
+    applied to the twin's readings instead (linear between them) left an acceleration up to its range off."""
     clean, dt, between = truth
     signals = {k: clean.signals[k] for k in COMPARED if k in clean.signals}
     log = resample(clean.time, clean.commands, signals, Condition("500hz", rate_hz=500.0), dt, between)
-    prepared = prepare_log(log.time, log.commands, log.truth, np.full(len(log.time), "", dtype=object), dt)
+    logged = {k: first_order_filter(v, log.h, tau) for k, v in log.truth.items()} if tau else log.truth
+    prepared = prepare_log(log.time, log.commands, logged, np.full(len(log.time), "", dtype=object), dt)
     report = prepared.report
     assert report.resampled and report.span_s == pytest.approx(log.time[-1] - log.time[0])
     n = len(prepared.time)
-    alike = dataclasses.replace(twin, log_step=1.0 / report.original_rate_hz, log_span=report.span_s)
+    alike = dataclasses.replace(twin, log_step=1.0 / report.original_rate_hz, log_span=report.span_s, sensor_tau=tau)
     assert TwinSpec.from_dict(alike.to_dict()) == alike  # what a saved twin file carries
     seen = Simulator(alike).run(prepared.commands)
-    plain = Simulator(twin).run(prepared.commands)
-    worst_alike = max(np.max(np.abs(seen.signals[k] - prepared.signals[k][:n])) / np.ptp(signals[k]) for k in signals)
-    worst_plain = max(np.max(np.abs(plain.signals[k] - prepared.signals[k][:n])) / np.ptp(signals[k])
-                      for k in signals)
-    assert worst_alike < 1e-6
-    assert worst_plain > 0.05  # the control-step samples alone: a jump inside a step spread over its neighbours
+    plain = Simulator(dataclasses.replace(twin, sensor_tau=tau)).run(prepared.commands)
+    between_only = Simulator(alike).run(prepared.commands, between=True).between
+    assert between_only is not None
+    worst = {name: max(np.max(np.abs(out[k][:n] - prepared.signals[k])) / np.ptp(signals[k]) for k in signals)
+             for name, out in (("alike", seen.signals), ("plain", plain.signals))}
+    assert worst["alike"] < 1e-6
+    assert worst["plain"] > 0.05  # the control-step samples alone: a jump inside a step spread over its neighbours
+    if tau:  # the readings filtered, then resampled: the filter must act between them
+        op = resampling_operator(len(prepared.commands) + 1, 5, dt, alike.log_step, alike.log_span)
+        inner = n - 5  # away from the last row, which reads a step the readings do not cover
+        read_filtered = max(np.max(np.abs((op @ np.append(between_only.signals[k], np.zeros(5)))[:inner]
+                                          - prepared.signals[k][:inner])) / np.ptp(signals[k])
+                            for k in ("a1", "alpha1"))
+        assert read_filtered > 0.05
