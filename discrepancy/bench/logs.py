@@ -119,16 +119,16 @@ def resample(time: np.ndarray, commands: np.ndarray, signals: Mapping[str, np.nd
         signals: SI channels at ``time``.
         cond: the condition (rate and offset are used here; dropping a channel is the writer's job).
         control_dt: the twin's control step, s.
-        between: the same channels read between the control steps too (every ``between.dt`` s from the first
-            at ``between.dt``): the truth between them is interpolated from those; None: from ``signals``.
+        between: the same channels (every one of ``signals``) read between the control steps too (every
+            ``between.dt`` s from the first at ``between.dt``): the truth is interpolated from those; None: from
+            ``signals``.
     """
     time = np.asarray(time, float)
-    if between is not None:
-        fine = between.dt * np.arange(1, len(next(iter(between.signals.values()))) + 1)
-        splines = {k: CubicSpline(fine, np.asarray(between.signals[k], float)) if k in between.signals
-                   else CubicSpline(time, np.asarray(v, float)) for k, v in signals.items()}
-    else:
+    if between is None:
         splines = {k: CubicSpline(time, np.asarray(v, float)) for k, v in signals.items()}
+    else:
+        fine = between.dt * np.arange(1, len(next(iter(between.signals.values()))) + 1)
+        splines = {k: CubicSpline(fine, np.asarray(between.signals[k], float)) for k in signals}
     if cond.rate_hz:
         h = 1.0 / cond.rate_hz
         t = time[0] + h * np.arange(int(np.floor((time[-1] - time[0]) / h + 1e-9)) + 1)

@@ -105,9 +105,9 @@ class TwinDigEnv(WheelLoaderDigEnv):
         self.physics = PhysicsParams()
         self._written: tuple[float, np.ndarray] | None = None
         self._payload_body = -1
-        #: ``(time s, signals)`` read between control steps, at each soil refresh inside one (None: not read; see
+        #: the signals read between control steps, at each soil refresh inside one, in order (None: not read; see
         #: :meth:`read_between`)
-        self.between: list[tuple[float, dict[str, float]]] | None = None
+        self.between: list[dict[str, float]] | None = None
         self._block = 0
         super().__init__(**kwargs)
         self.nominal_soil = self.soil
@@ -230,7 +230,7 @@ class TwinDigEnv(WheelLoaderDigEnv):
         """From the next step on, also read the signals inside each control step, at every soil refresh after its
         first (``external_force_substeps`` physics steps apart: 5 per control step by default), into
         :attr:`between`, cleared here. What a log sampled faster than the control step saw between the twin's
-        samples (:func:`~discrepancy.data.fieldlog.sampling_correction`). Reading computes the forces of the state
+        samples (:func:`~discrepancy.data.fieldlog.resampling_operator`). Reading computes the forces of the state
         reached (``mj_forward``) and changes nothing the physics goes on from: the control-step signals are the same
         to the bit (tested)."""
         self.between = [] if on else None
@@ -240,7 +240,7 @@ class TwinDigEnv(WheelLoaderDigEnv):
         (:meth:`read_between`) in their places: the step between readings (s) and every reading in time order."""
         parts = self.frame_skip // self.external_force_substeps
         inside = iter(self.between or [])  # parts - 1 readings inside each control step, in order
-        merged = [r for row in rows for r in (*(s for _, s in itertools.islice(inside, parts - 1)), row)]
+        merged = [r for row in rows for r in (*itertools.islice(inside, parts - 1), row)]
         return float(self.dt) / parts, merged
 
     def _simulate(self, ctrl: np.ndarray) -> str | None:
@@ -251,8 +251,7 @@ class TwinDigEnv(WheelLoaderDigEnv):
         if self.between is not None and self._block:
             mujoco.mj_forward(self.model, self.data)
             mujoco.mj_rnePostConstraint(self.model, self.data)
-            self.between.append((self._t + self._block * self.external_force_substeps * self.model.opt.timestep,
-                                 self._step_signals(self._read_signals(self.soil_force()))))
+            self.between.append(self._step_signals(self._read_signals(self.soil_force())))
         self._block += 1
         self._clamp_windup()
         super()._apply_external_forces()

@@ -257,8 +257,7 @@ class Simulator:
         names = [k for k in (*COMPARED, *ROUTE2) if rows and k in rows[0]]
         # a replay that diverged only in the steps after the log's end holds its last sample over them
         hold = len(rows) >= n
-        signals = self._sensed({k: _padded([r[k] for r in rows], n + past, hold) for k in names}, env.dt, n, plan)
-        fine = None
+        fine, signals = None, None
         if env.between is not None and error is None and len(rows) == n + past:
             fine_dt, merged = env.readings(rows)
             parts = round(env.dt / fine_dt)
@@ -270,6 +269,9 @@ class Simulator:
                 signals = {k: (resampling_operator(n + past, parts, float(env.dt), self.twin.log_step,
                                                    self.twin.log_span, float(taus[k])) @ v)[:n]
                            for k, v in unfiltered.items()}
+        if signals is None:  # the control-step samples (a replay of a resampled log that did not run through too)
+            signals = self._sensed({k: _padded([r[k] for r in rows], n + past, hold) for k in names}, env.dt, n,
+                                   plan)
         env.read_between(False)
         phases = phases[:n]
         if hold:
