@@ -226,9 +226,11 @@ class Simulator:
         n = len(commands)
         resampled = self.twin.log_step > 0.0 and n > 0
         lead = self.twin.lead_steps(self.control_dt) if n else 0
-        # a resampled log runs on to its last sample, up to a control step past the last row: the anti-alias filter
-        # of that row reads it, so the replay runs on as far (the last command held)
-        past = max(lead, math.ceil(1.0 + self.twin.log_span / self.control_dt - 1e-9) - n) if resampled else lead
+        # a replay of a resampled log's every row runs on to its last sample, up to a control step past the last
+        # row: the anti-alias filter of that row reads it, so the replay runs on as far (the last command held); a
+        # replay of its first rows only (a start fit) carries its own margin (TwinSpec.resampling_reach)
+        end = math.ceil(1.0 + self.twin.log_span / self.control_dt - 1e-9)
+        past = max(lead, end - n) if resampled and n >= end - 1 else lead
         if past:
             tail = np.asarray(self.twin.command_tail[:lead], dtype=float).reshape(-1, 3)
             held = np.repeat(tail[-1:] if len(tail) else np.asarray(commands)[-1:], past - len(tail), axis=0)
