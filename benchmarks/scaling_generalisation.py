@@ -1,14 +1,15 @@
 """Leave-machine-out benchmark: δ1 models judged on machines of the product line they never saw.
 
-Machines: 40 drawn from the design space with seed 0 plus the ER12 preset; 24 of the drawn ones and the ER12
-train, the other 16 calibrate the conformal intervals, the error score and the extrapolation threshold.
+Machines: 64 drawn from the design space with seed 0 plus the ER12 preset; 24 of the drawn ones and the ER12
+train, the other 40 calibrate the conformal intervals, the error score and the extrapolation threshold (16 until
+2026-11-28: too few, see ``benchmarks/interval_limits.py``).
 Test: 10 machines drawn with seed 1 (never used for anything else), the ``mini`` preset (simulated dig cycles
 and holds: the miniature) and the ``wa475`` preset. Every machine digs 4 soils × 2 pile heights and does 4
 static-hold episodes. Per test machine: F21 MAPE and median error on dig rows and on holds (rows after start-up
 settling with F21 > 5 % of the machine's peak), peak F21 error, 90 % interval coverage, the share of rows the error
 score warns on; over all test rows, the AUROC of the error score and of the design distance.
 
-Before the test machines, the served interval and error score are judged on the 16 calibration machines, each left
+Before the test machines, the served interval and error score are judged on the 40 calibration machines, each left
 out in turn (:func:`scaling.evaluation.generalisation.cross_fit_served`): where their bound and threshold were chosen.
 
 Run: ``python benchmarks/scaling_generalisation.py [--data DIR] [--workers 2] [--quick]``; recordings are kept

@@ -10,7 +10,7 @@ values both.
 
 Its card says what the leave-machine-out proof measured: per held-out machine (drawn with another seed, never
 used in training or calibration, plus the ``mini`` and ``wa475`` presets) the F21 error on dig and hold rows,
-the peak error and the coverage of the card's interval. The interval is calibrated on 16 calibration machines
+the peak error and the coverage of the card's interval. The interval is calibrated on 40 calibration machines
 (held out of training) for "a new machine of the line", not for rows of machines the model saw: per row, ln δ1 ±
 q·s(x) with a width s learnt from what the served model knows of the row and q covering 90 % of the rows of the
 median calibration machine (:class:`scaling.evaluation.conformal.RowInterval`; the bound chosen leaving each

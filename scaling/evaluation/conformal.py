@@ -558,7 +558,7 @@ class RowInterval:
     machine (``machine_share`` None, :func:`group_weighted_quantile`).
 
     The interval widens where the served features say the model is on less familiar ground, and it is calibrated
-    per machine. Which bound: chosen by leaving each of the 16 calibration machines of the leave-machine-out
+    per machine. Which bound: chosen by leaving each calibration machine of the leave-machine-out
     layout out in turn (:func:`scaling.evaluation.generalisation.cross_fit_served`). A bound for 90 % of the
     machines (share 0.9) over-covers most new machines to protect the few whose errors are their own (a handful of
     rows far off, which no served feature of one machine predicts); the median machine's bound centres each
