@@ -141,9 +141,11 @@ def main() -> None:
     ap.add_argument("--test-seeds", default="1,19,20,21")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--out", type=Path, default=OUT)
+    ap.add_argument("--checkpoint", default=CHECKPOINT,
+                    help=f"a registered name or a checkpoint folder (default {CHECKPOINT}; e.g. an older build)")
     args = ap.parse_args()
     started, load = time.perf_counter(), [os.getloadavg()[0]]
-    model = zoo.load(CHECKPOINT)
+    model = zoo.load(args.checkpoint)
     seeds = [int(s) for s in args.test_seeds.split(",")]
     summaries, ratios = [], {}
     base = LeaveMachineOut()
@@ -182,7 +184,8 @@ def main() -> None:
     text = report(table, oracles, predictors, {
         "date": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"), "code": code_version(), "host": host_line(),
         "load": load, "seconds": time.perf_counter() - started, "seeds": seeds,
-        "card_sha256": zoo.resolve(CHECKPOINT)[1], "created": model.card.get("created")})
+        "checkpoint": args.checkpoint, "card_sha256": zoo.resolve(args.checkpoint)[1],
+        "created": model.card.get("created")})
     args.out.with_suffix(".md").write_text(text)
     print(text)
 
@@ -195,10 +198,10 @@ def report(table: pd.DataFrame, oracles: dict[str, float], predictors: dict[str,
         "# What a 90 % interval needs to cover 85–95 % of every new machine's rows", "",
         f"{meta['date']}, code {meta['code']}, {meta['host']}, load average "
         f"{', '.join(f'{x:.1f}' for x in meta['load'])}, {meta['seconds']:.0f} s. Produced by "
-        "`python benchmarks/interval_limits.py` (method in its docstring). Checkpoint `statics-pl` (card sha256 "
-        f"{str(meta['card_sha256'])[:12]}…, built {meta['created']}) served as a user would, each target row from its "
-        "matched row of the nearest training machine; "
-        f"{len(cal)} calibration machines (where the served bound was set) and {len(test)} drawn test machines "
+        f"`python benchmarks/interval_limits.py` (method in its docstring). Checkpoint `{meta['checkpoint']}` "
+        f"(card sha256 {str(meta['card_sha256'])[:12]}…, built {meta['created']}) served as a user would, each "
+        "target row from its matched row of the nearest training machine; "
+        f"{len(cal)} calibration machines (of the leave-machine-out layout) and {len(test)} drawn test machines "
         f"(design-space seeds {', '.join(map(str, meta['seeds']))}).", "",
         "k = the multiplier of the served half-width that covers exactly 90 % of a machine's rows (1: the served "
         "interval is right for it); the band 85–95 % leaves each machine ln(q95/q90) above and ln(q90/q85) below.",
