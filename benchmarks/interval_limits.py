@@ -19,7 +19,7 @@ with its matched row of the nearest training machine, the leave-machine-out benc
   spread of F21 predicted from the three nearest training machines), fitted on the calibration machines and judged
   on the test machines: the log-SD of their error in ln k_m against that of a constant.
 
-Run: ``python benchmarks/interval_limits.py [--data runs/zoo-product-line] [--test-seeds 1,19,20,21]`` (the test
+Run: ``python benchmarks/interval_limits.py [--data runs/zoo-product-line] [--test-seeds 1,19,20,21,22]`` (the test
 lines' recordings in ``--data`` for seed 1 and ``runs/zoo-product-line-s<seed>/test`` for the others, simulated
 there when missing, as ``benchmarks/scaling_generalisation.py`` does); writes
 ``benchmarks/results/interval_limits.{md,csv}`` (the CSV: one row per machine).
@@ -138,7 +138,7 @@ def predictor_errors(table: pd.DataFrame) -> dict[str, tuple[float, float]]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=Path("runs/zoo-product-line"))
-    ap.add_argument("--test-seeds", default="1,19,20,21")
+    ap.add_argument("--test-seeds", default="1,19,20,21,22")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--out", type=Path, default=OUT)
     ap.add_argument("--checkpoint", default=CHECKPOINT,
