@@ -81,9 +81,14 @@ def machine_rows(model: zoo.ScalingModel, target: pd.DataFrame, sources: list[pd
     return rows[np.isfinite(rows["log_error"]) & (rows["half_width"] > 0)].reset_index(drop=True)
 
 
-def summarise(name: str, line: str, rows: pd.DataFrame, design_distance: float) -> dict[str, float | str]:
-    """One machine's needs (``ratio`` = |log error| / served half-width) and its machine-level predictors."""
-    ratio = np.abs(rows["log_error"].to_numpy()) / rows["half_width"].to_numpy()
+def ratios_of(rows: pd.DataFrame) -> np.ndarray:
+    """|log error| / served half-width per row (1: on the interval's edge)."""
+    return np.abs(rows["log_error"].to_numpy()) / rows["half_width"].to_numpy()
+
+
+def summarise(name: str, line: str, rows: pd.DataFrame, ratio: np.ndarray, design_distance: float
+              ) -> dict[str, float | str]:
+    """One machine's needs (``ratio``: :func:`ratios_of` its ``rows``) and its machine-level predictors."""
     q85, q90, q95, q50 = np.quantile(ratio, [0.85, 0.90, 0.95, 0.50])
     return {"line": line, "machine": name, "rows": len(rows), "coverage": float(np.mean(ratio <= 1.0)),
             "k": float(q90), "k_median": float(q50), "tolerance_up": float(np.log(q95 / q90)),
@@ -161,8 +166,8 @@ def main() -> None:
             near = nearest_machines(specs[name], train_specs, 3)
             rows = machine_rows(model, target, [sources[s] for s in near])
             distance = float(extrap.score(design_descriptor(specs[name]))[0])
-            summaries.append(summarise(name, line, rows, distance))
-            ratios[f"{line}/{name}"] = np.abs(rows["log_error"].to_numpy()) / rows["half_width"].to_numpy()
+            ratio = ratios[f"{line}/{name}"] = ratios_of(rows)
+            summaries.append(summarise(name, line, rows, ratio, distance))
             print(f"{line} {name}: coverage {summaries[-1]['coverage']:.2f}, k {summaries[-1]['k']:.2f}")
 
     judge("calibration", {m: by_machine[m] for m in split.calibration}, split.specs)
