@@ -14,8 +14,9 @@
     relief or contact between them), commands are held over each control step, noise is added at the log's rate (so
     the tool must anti-alias);
   * ``offset``: at the control step, the signals shifted against the commands by ``offset_s`` (positive: the signals
-    lag; cubic interpolation between the control steps, as the tool's twin is read at an offset: not yet the
-    physics between them; rows beyond the truth are dropped at the end, held at the start);
+    lag): the truth at the shifted times is the physics between the control steps, as for the fast logs (before
+    2026-11-28: a cubic through the control samples, the very curve the tool's twin was read on at an offset);
+    rows beyond the truth are dropped at the end, held at the start;
   * ``missing``: at the control step, one compared channel dropped.
 """
 
@@ -23,7 +24,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -97,11 +98,15 @@ def draw_condition(rng: np.random.Generator, name: str, droppable: tuple[str, ..
 
 @dataclass
 class LogData:
-    """A log before noise: times (s), commands (rows, 3), true SI channels at those times."""
+    """A log before noise: times (s), commands (rows, 3), true SI channels at those times, and the same channels at
+    ``parts`` instants per log step (``fine``: the ``parts``-th of each group at the log's own time, the others
+    evenly before it), which a sensor filter acts on (the signal between the samples, not a line through them)."""
 
     time: np.ndarray
     commands: np.ndarray
     truth: dict[str, np.ndarray]
+    fine: dict[str, np.ndarray] = field(default_factory=dict)
+    parts: int = 1
 
     @property
     def h(self) -> float:
@@ -110,7 +115,7 @@ class LogData:
 
 
 def resample(time: np.ndarray, commands: np.ndarray, signals: Mapping[str, np.ndarray], cond: Condition,
-             control_dt: float, between: Between | None = None) -> LogData:
+             control_dt: float, between: Between | None = None, parts: int = 1) -> LogData:
     """The true log of ``cond`` from a recording at the control step.
 
     Args:
@@ -122,13 +127,16 @@ def resample(time: np.ndarray, commands: np.ndarray, signals: Mapping[str, np.nd
         between: the same channels (every one of ``signals``) read between the control steps too (every
             ``between.dt`` s from the first at ``between.dt``): the truth is interpolated from those; None: from
             ``signals``.
+        parts: instants per log step of :attr:`LogData.fine` (1: the log's own).
     """
     time = np.asarray(time, float)
     if between is None:
         splines = {k: CubicSpline(time, np.asarray(v, float)) for k, v in signals.items()}
-    else:
+        first = time[0]
+    else:  # known from the first reading on, a fraction of a control step before the first sample
         fine = between.dt * np.arange(1, len(next(iter(between.signals.values()))) + 1)
         splines = {k: CubicSpline(fine, np.asarray(between.signals[k], float)) for k in signals}
+        first = fine[0]
     if cond.rate_hz:
         h = 1.0 / cond.rate_hz
         t = time[0] + h * np.arange(int(np.floor((time[-1] - time[0]) / h + 1e-9)) + 1)
@@ -136,9 +144,16 @@ def resample(time: np.ndarray, commands: np.ndarray, signals: Mapping[str, np.nd
         t = time.copy()
     src = t - cond.offset_s  # the sensor reading logged at t is the truth at t − offset
     keep = src <= time[-1] + 1e-9
-    t, src = t[keep], np.clip(src[keep], time[0], time[-1])
+    t, src = t[keep], src[keep]
     step = np.clip(np.ceil(t / control_dt - 1e-6).astype(int) - 1, 0, len(commands) - 1)
-    return LogData(t, np.asarray(commands, float)[step], {k: sp(src) for k, sp in splines.items()})
+    h = float(np.median(np.diff(t))) if len(t) > 1 else control_dt
+    fine_src = (src[:, None] - h * (parts - 1 - np.arange(parts)) / parts).ravel()
+    fine = {k: sp(np.clip(fine_src, first, time[-1])) for k, sp in splines.items()}
+    if not cond.rate_hz and not cond.offset_s:  # the control-step samples themselves (a spline is exact to 1e-12)
+        truth = {k: np.asarray(signals[k], float).copy() for k in splines}
+    else:
+        truth = {k: v[parts - 1::parts] for k, v in fine.items()}
+    return LogData(t, np.asarray(commands, float)[step], truth, fine, parts)
 
 
 def write_csv(path: Path, time: np.ndarray, commands: np.ndarray, signals: Mapping[str, np.ndarray],

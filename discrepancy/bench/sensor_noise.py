@@ -186,7 +186,8 @@ class Noisy:
 
 
 def apply_noise(spec: NoiseSpec, truth: Mapping[str, np.ndarray], h: float, control_dt: float,
-                ranges: Mapping[str, float], sub_seed: int = 0) -> Noisy:
+                ranges: Mapping[str, float], sub_seed: int = 0, fine: Mapping[str, np.ndarray] | None = None,
+                parts: int = 1) -> Noisy:
     """``truth`` (SI channels sampled every ``h`` s) as the sensors of ``spec`` would log it.
 
     Args:
@@ -196,6 +197,8 @@ def apply_noise(spec: NoiseSpec, truth: Mapping[str, np.ndarray], h: float, cont
         control_dt: the twin's control step, s (the step at which ``spec.rho`` is the lag-one autocorrelation).
         ranges: channel → range in its SI unit (amplitudes are fractions of it).
         sub_seed: distinguishes the recordings of one case (analysed, held out).
+        fine: the same channels at ``parts`` instants per log step, the last of each group at the log's sample
+            (``LogData.fine``): a sensor filter acts on those, the signal between the samples.
     """
     measured, sensor, noise = {}, {}, {}
     for j, (name, x) in enumerate(sorted(truth.items())):
@@ -213,7 +216,8 @@ def apply_noise(spec: NoiseSpec, truth: Mapping[str, np.ndarray], h: float, cont
         elif spec.family == "quantised":
             y = quantise(x + white(rng, n, SMALL_WHITE * sd), rng_ / 2.0**spec.bits)
         elif spec.family == "lowpass":
-            s = lowpass(x, h, spec.tau(name))
+            s = (lowpass(np.asarray(fine[name], float), h / parts, spec.tau(name))[parts - 1::parts]
+                 if fine is not None and name in fine else lowpass(x, h, spec.tau(name)))
             y = s + white(rng, n, sd)
         else:
             raise ValueError(f"unknown noise family {spec.family!r}; known {FAMILIES}")

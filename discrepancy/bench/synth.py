@@ -11,6 +11,7 @@ the provenance), never the planted physics.
 from __future__ import annotations
 
 import inspect
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -38,6 +39,12 @@ class Synthetic:
     control_dt: float = float("nan")
     path: Path | None = None  # the field log the tool reads (None: ``noisy`` is handed over in memory)
     meta: dict[str, object] = field(default_factory=dict)
+
+
+#: Instants per control step at which the benchmark's sensor filter acts on the truth between the control steps:
+#: four times the twin's readings (5 per step, ``TwinDigEnv.read_between``), cubic between those, so that the
+#: generator's sensor is finer than the tool's model of it (a filter over the tool's readings, linear between them).
+FILTER_PARTS = 20
 
 
 def simulate(twin: TwinSpec, effects: Sequence[Effect], seed: int, extra: PhysicsParams | None = None,
@@ -124,7 +131,8 @@ def field_recording(clean: EpisodeData, control_dt: float, noise: NoiseSpec, con
         sub_seed: distinguishes the noise of the case's recordings.
         folder: where field logs go (needed unless ``cond`` is ``native``).
         between: the truth between the control steps (:func:`simulate_between`), which a log faster than the
-            control step sees; None: interpolated between the control steps (so is an offset log's).
+            control step, a log at an offset and a sensor filter see; None: interpolated between the control
+            steps.
 
     Returns:
         ``noisy`` is the in-memory recording (native) or what the tool's loader made of the log (field logs:
@@ -134,11 +142,14 @@ def field_recording(clean: EpisodeData, control_dt: float, noise: NoiseSpec, con
     Raises:
         RecordingError: the tool's loader refused the log (e.g. a rate it cannot resample yet).
     """
-    # between the control steps, the physics for a log sampled faster; an offset log at the control step is still
-    # read from a cubic through the control samples (as the tool's twin reads it, ``fieldlog.delayed``)
-    log = resample(clean.time, clean.commands, clean.signals, cond, control_dt, between if cond.rate_hz else None)
+    # between the control steps, the physics (a log sampled faster, or late, reads it there); a sensor filter acts
+    # on it at FILTER_PARTS instants per control step at least
+    h = 1.0 / cond.rate_hz if cond.rate_hz else control_dt
+    parts = max(1, math.ceil(FILTER_PARTS * h / control_dt - 1e-9)) if noise.family == "lowpass" else 1
+    log = resample(clean.time, clean.commands, clean.signals, cond, control_dt, between, parts)
     channels = logged_channels(log.truth, cond) if cond.field_log else list(log.truth)
-    noisy = apply_noise(noise, {k: log.truth[k] for k in channels}, log.h, control_dt, ranges, sub_seed)
+    noisy = apply_noise(noise, {k: log.truth[k] for k in channels}, log.h, control_dt, ranges, sub_seed,
+                        {k: log.fine[k] for k in channels}, log.parts)
     sd = {k: _control_step_sd(log.time, v, control_dt) for k, v in noisy.noise.items()}
     if not cond.field_log:
         ep = EpisodeData(clean.time.copy(), clean.commands.copy(), noisy.measured, clean.phases.copy(), clean.seed,

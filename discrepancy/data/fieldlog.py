@@ -726,20 +726,30 @@ def tau_standard_error(real: np.ndarray, twin: np.ndarray, dt: float, tau: float
     return sd / math.sqrt(info)
 
 
+def filtered_samples(x: np.ndarray, dt: float, tau: float, parts: int = 1) -> np.ndarray:
+    """``x`` read ``parts`` times per sample step ``dt`` (s; the ``parts``-th of each group at the sample, the
+    first ``dt / parts`` after the previous one) through a first-order filter of ``tau`` s, at the samples: a
+    sensor filters the signal between the samples, not a line through them."""
+    if parts == 1:
+        return first_order_filter(x, dt, tau)
+    return first_order_filter(x, dt / parts, tau)[..., parts - 1::parts]
+
+
 def estimate_sensor_tau(real: Mapping[str, np.ndarray], twin: Mapping[str, np.ndarray], dt: float,
-                        channels: Sequence[str] | None = None) -> float:
+                        channels: Sequence[str] | None = None, parts: int = 1) -> float:
     """One first-order sensor time constant (s) common to ``channels`` (default: every compared channel present
     and finite in both): the ``tau`` in ``[0, TAU_MAX]`` minimising the mean squared residual of ``real`` against
     the twin passed through :func:`first_order_filter` (each channel normalised by the twin's spread), found by
-    :func:`best_tau`; 0 when no filter lowers the residual by :data:`MIN_TAU_GAIN`.
+    :func:`best_tau`; 0 when no filter lowers the residual by :data:`MIN_TAU_GAIN`. With ``parts`` > 1 the twin
+    is read that many times per sample of ``real`` and filtered there (:func:`filtered_samples`).
     """
     names = _filterable(real, twin, channels)
     if not names:
         return 0.0
-    scale = {c: float(np.std(twin[c])) for c in names}
+    scale = {c: float(np.std(twin[c][parts - 1::parts])) for c in names}
 
     def cost(tau: float) -> float:
-        return float(np.mean([np.mean(((real[c] - first_order_filter(twin[c], dt, tau)) / scale[c]) ** 2)
+        return float(np.mean([np.mean(((real[c] - filtered_samples(twin[c], dt, tau, parts)) / scale[c]) ** 2)
                               for c in names]))
 
     tau, c_tau, c_none = best_tau(cost, dt)
@@ -747,7 +757,7 @@ def estimate_sensor_tau(real: Mapping[str, np.ndarray], twin: Mapping[str, np.nd
 
 
 def estimate_channel_taus(real: Mapping[str, np.ndarray], twin: Mapping[str, np.ndarray], dt: float,
-                          channels: Sequence[str] | None = None) -> dict[str, float]:
+                          channels: Sequence[str] | None = None, parts: int = 1) -> dict[str, float]:
     """A first-order sensor time constant (s) per channel of ``channels`` (default: every compared channel present
     and finite in both): for each, the ``tau`` in ``[0, TAU_MAX]`` minimising that channel's mean squared residual
     of ``real`` against the twin through :func:`first_order_filter` (the search of :func:`estimate_sensor_tau` on
@@ -758,12 +768,13 @@ def estimate_channel_taus(real: Mapping[str, np.ndarray], twin: Mapping[str, np.
     inclinometer's averaging differ), and a common ``tau`` leaves each channel the lag by which its own differs,
     which reads as a discrepancy. Call it only where a common filter was found (:func:`estimate_sensor_tau` > 0):
     a lag on one channel of an unfiltered log is a sensor fault the diagnosis names (``sensor_delay``).
+    ``parts``: as in :func:`estimate_sensor_tau`.
     """
     out = {}
     for c in _filterable(real, twin, channels):
 
         def cost(tau: float, c: str = c) -> float:
-            return float(np.mean((real[c] - first_order_filter(twin[c], dt, tau)) ** 2))
+            return float(np.mean((real[c] - filtered_samples(twin[c], dt, tau, parts)) ** 2))
 
         out[c] = best_tau(cost, dt)[0]
     return out
@@ -797,7 +808,7 @@ def best_tau(cost: Callable[[float], float], dt: float) -> tuple[float, float, f
 __all__ = [
     "KINEMATIC", "MAX_GAP_STEPS", "InputReport", "OffsetEstimate", "PreparedLog",
     "antialias_filter", "best_tau", "bridge_gaps", "command_timing", "control_grid", "delayed", "end_level",
-    "estimate_channel_taus", "estimate_offset", "estimate_sensor_tau", "filter_sensitivity",
+    "estimate_channel_taus", "estimate_offset", "estimate_sensor_tau", "filter_sensitivity", "filtered_samples",
     "first_order_filter", "jittered_commands", "moved_commands", "prepare_log", "resample_commands",
     "resample_phases", "resample_signal", "tau_standard_error",
 ]

@@ -31,6 +31,7 @@ from discrepancy.data.fieldlog import (
     estimate_channel_taus,
     estimate_offset,
     estimate_sensor_tau,
+    filtered_samples,
     first_order_filter,
     tau_standard_error,
 )
@@ -66,7 +67,23 @@ class Alignment:
 
 
 def _filtered(result: SimResult, dt: float, tau: float) -> dict:
-    return {k: first_order_filter(v, dt, tau) for k, v in result.signals.items()} if tau > 0 else result.signals
+    """``result``'s signals through a sensor filter of ``tau`` s: filtered between the control steps where the
+    replay was read there (a sensor filters the signal, not a line through its samples)."""
+    if tau <= 0:
+        return result.signals
+    if result.between is None:
+        return {k: first_order_filter(v, dt, tau) for k, v in result.signals.items()}
+    parts = round(dt / result.between.dt)
+    return {k: filtered_samples(v, dt, tau, parts) for k, v in result.between.signals.items()}
+
+
+def _read(result: SimResult, dt: float, rows: int) -> tuple[dict[str, np.ndarray], int]:
+    """``result``'s signals over its first ``rows`` control steps as a sensor filter meets them: read between the
+    steps where the replay was (with the readings per step), else the control samples (1)."""
+    if result.between is None:
+        return _head(result.signals, rows), 1
+    parts = round(dt / result.between.dt)
+    return _head(result.between.signals, rows * parts), parts
 
 
 def _offset(ep: EpisodeData, twin: dict, notes: list[str], scale: dict[str, float] | None = None
@@ -134,12 +151,13 @@ def _channel_taus(ep: EpisodeData, spec: TwinSpec, runner: Runner, rows: int, co
     the start does and a sensor filter does not (benchmark seed 86 case 39: ``F21_z`` and ``F31_z`` at 1 s for a
     true 0.21 and 0.26 s, ``F21_z`` then located in the penetration of a null)."""
     nominal = plain or runner.with_twin(dataclasses.replace(spec, sensor_tau=0.0, sensor_taus=())).run_many(
-        ep.commands, [Plan()])[0]
+        ep.commands, [Plan()], between=spec.log_step <= 0.0)[0]
     if nominal.error:
         return ()
     rows = min(rows, len(ep))
     real, twin = _head(ep.signals, rows), _head(nominal.signals, rows)
-    taus = estimate_channel_taus(real, twin, ep.dt)
+    fine, parts = _read(nominal, ep.dt, rows)
+    taus = estimate_channel_taus(real, fine, ep.dt, parts=parts)
     return tuple(sorted((c, t) for c, t in taus.items() if abs(t - common) >= TOLERANCE * ep.dt and t < TAU_MAX
                         and (t <= 0.0 or abs(t - common) >= SIGNIFICANT * tau_standard_error(real[c], twin[c],
                                                                                              ep.dt, t))))
@@ -156,6 +174,7 @@ def align(ep: EpisodeData, spec: TwinSpec, runner: Runner) -> tuple[EpisodeData,
     the start."""
     notes: list[str] = []
     spec = _resampled_alike(ep, spec, notes)
+    fine = spec.log_step <= 0.0  # a log at the control step: filters and offsets act between the twin's steps
     start, total, applied, offset = None, 0.0, False, None
     if ep.seed is None:
         # the start, a filter the twin does not declare and the time offset are fitted together (see
@@ -166,7 +185,7 @@ def align(ep: EpisodeData, spec: TwinSpec, runner: Runner) -> tuple[EpisodeData,
         total = start.offset
         applied = total != 0.0
         if applied:
-            again = runner.with_twin(spec).run_many(ep.commands, [Plan()])[0]
+            again = runner.with_twin(spec).run_many(ep.commands, [Plan()], between=fine)[0]
             seen = _filtered(again, ep.dt, start.sensor_tau) if profile else again.signals
             offset = estimate_offset(_head(ep.signals, start.rows), _head(seen, start.rows), ep.dt,
                                      scale=signal_spread(seen))
@@ -178,7 +197,7 @@ def align(ep: EpisodeData, spec: TwinSpec, runner: Runner) -> tuple[EpisodeData,
             notes.append(f"the log does not show the pile's {unseen} (the bucket never reaches it): left at the "
                          "twin's nominal value")
     spec = dataclasses.replace(spec, time_offset=total)
-    nominal = runner.with_twin(spec).run_many(ep.commands, [Plan()])[0]
+    nominal = runner.with_twin(spec).run_many(ep.commands, [Plan()], between=fine)[0]
     if nominal.error:
         return ep, spec, Alignment(start, 0.0, offset, applied, tuple(notes))
     # where the start was estimated, the filter is fitted on the rows it was fitted on: later in the dig a twin
@@ -187,7 +206,8 @@ def align(ep: EpisodeData, spec: TwinSpec, runner: Runner) -> tuple[EpisodeData,
     if start is not None and spec.sensor_tau == 0.0:  # fitted jointly with the start
         tau = start.sensor_tau
     else:
-        tau = estimate_sensor_tau(_head(ep.signals, trusted), _head(nominal.signals, trusted), ep.dt)
+        twin, parts = _read(nominal, ep.dt, trusted)
+        tau = estimate_sensor_tau(_head(ep.signals, trusted), twin, ep.dt, parts=parts)
     seen = _filtered(nominal, ep.dt, tau)
     rest, undo = _offset(ep.head(trusted), _head(seen, trusted), notes, signal_spread(seen))
     # the replay above is the twin without filters at the offset kept, unless the spec declares a filter or the

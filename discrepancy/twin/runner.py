@@ -28,7 +28,7 @@ class Runner(Protocol):
     twin: TwinSpec
 
     def run_many(self, commands: np.ndarray, plans: Sequence[Plan], seed: int | None = None,
-                 starts: Sequence[Start] | None = None) -> list[SimResult]: ...
+                 starts: Sequence[Start] | None = None, between: bool = False) -> list[SimResult]: ...
 
     def with_twin(self, twin: TwinSpec) -> Runner:
         """This runner's workers replaying ``twin`` (shared; close only the original)."""
@@ -54,11 +54,12 @@ class SerialRunner:
         return SerialRunner(twin, self.sims)
 
     def run_many(self, commands: np.ndarray, plans: Sequence[Plan], seed: int | None = None,
-                 starts: Sequence[Start] | None = None) -> list[SimResult]:
-        """One replay per plan (and per start, when given: reset options overriding the twin's)."""
+                 starts: Sequence[Start] | None = None, between: bool = False) -> list[SimResult]:
+        """One replay per plan (and per start, when given: reset options overriding the twin's); with ``between``
+        each also read between its control steps (``SimResult.between``)."""
         sim = self._sim(self.twin if seed is None else dataclasses.replace(self.twin, seed=seed))
         starts = starts if starts is not None else [None] * len(plans)
-        return [sim.run(commands, p, start=st) for p, st in zip(plans, starts, strict=True)]
+        return [sim.run(commands, p, start=st, between=between) for p, st in zip(plans, starts, strict=True)]
 
     def close(self) -> None:
         """Nothing to release."""
@@ -67,15 +68,15 @@ class SerialRunner:
 _WORKER_SIMS: dict[str, Simulator] = {}
 
 
-def _replay_task(task: tuple[TwinSpec, np.ndarray, Plan, Start | None]) -> SimResult:
+def _replay_task(task: tuple[TwinSpec, np.ndarray, Plan, Start | None, bool]) -> SimResult:
     """One replay in a worker, on a :class:`Simulator` the worker keeps per twin (its envs are built once)."""
-    twin, commands, p, start = task
+    twin, commands, p, start, between = task
     key = repr(twin)
     if key not in _WORKER_SIMS:
         if len(_WORKER_SIMS) > 4:
             _WORKER_SIMS.clear()
         _WORKER_SIMS[key] = Simulator(twin)
-    return _WORKER_SIMS[key].run(commands, p, start=start)
+    return _WORKER_SIMS[key].run(commands, p, start=start, between=between)
 
 
 class ExecutorRunner:
@@ -86,11 +87,11 @@ class ExecutorRunner:
         self.twin, self.executor, self.owned = twin, executor, owned
 
     def run_many(self, commands: np.ndarray, plans: Sequence[Plan], seed: int | None = None,
-                 starts: Sequence[Start] | None = None) -> list[SimResult]:
+                 starts: Sequence[Start] | None = None, between: bool = False) -> list[SimResult]:
         twin = self.twin if seed is None else dataclasses.replace(self.twin, seed=seed)
         starts = starts if starts is not None else [None] * len(plans)
-        return map_in_order(_replay_task, [(twin, commands, p, st) for p, st in zip(plans, starts, strict=True)],
-                            self.executor)
+        return map_in_order(_replay_task, [(twin, commands, p, st, between)
+                                           for p, st in zip(plans, starts, strict=True)], self.executor)
 
     def with_twin(self, twin: TwinSpec) -> ExecutorRunner:
         return ExecutorRunner(twin, self.executor, owned=False)

@@ -13,8 +13,9 @@ import pytest
 
 from discrepancy import TwinSpec
 from discrepancy.bench.cases import Case, make_case
+from discrepancy.bench.logs import Condition, resample
 from discrepancy.bench.sensor_noise import channel_range
-from discrepancy.bench.synth import field_recording, simulate, twin_file
+from discrepancy.bench.synth import field_recording, simulate, simulate_between, twin_file
 from discrepancy.data.episode import EpisodeData, signal_spread
 from discrepancy.data.fieldlog import first_order_filter
 from discrepancy.effects import Scales
@@ -148,12 +149,15 @@ def test_start_of_a_log_whose_channels_have_their_own_filters() -> None:
     one common τ cannot fit them, and the start fitted with it was off (the pile 0.05 boom lengths too far on this
     log, 0.523 for 0.47), and so was every channel's τ estimated against that start. Where a filter is found the
     start is fitted again with each channel's own τ profiled out: the pile and the start angles come back, and the
-    start carries a filter (the twin's common one; each channel's own is estimated against it afterwards)."""
+    start carries a filter (the twin's common one; each channel's own is estimated against it afterwards). The
+    sensors filter the physics between the control steps (20 instants a step), as the benchmark's do."""
     twin = TwinSpec(make_loader("er12"), make_soil("sand"), {}, 0)
     real = dataclasses.replace(twin, env_kwargs={"reset_noise_scale": 0.0, **TRUTH})
-    clean, control_dt = simulate(real, [], 3)
+    clean, control_dt, between = simulate_between(real, [], 3)
     steps = 60
-    signals = {k: first_order_filter(v, control_dt, OWN_TAUS.get(k, 0.15))[:steps] for k, v in clean.signals.items()}
+    log = resample(clean.time, clean.commands, clean.signals, Condition("csv"), control_dt, between, parts=20)
+    signals = {k: first_order_filter(v, control_dt / 20, OWN_TAUS.get(k, 0.15))[19::20][:steps]
+               for k, v in log.fine.items()}
     ep = EpisodeData(clean.time[:steps], clean.commands[:steps], signals, clean.phases[:steps], None, twin.loader,
                      twin.soil, {}, "field")
     est = estimate_start(ep, SerialRunner(twin), profile_filter=True, fit_offset=True)

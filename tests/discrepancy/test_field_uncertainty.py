@@ -13,7 +13,7 @@ import pytest
 from discrepancy import RecordingError, TwinSpec
 from discrepancy.bench.cases import make_case
 from discrepancy.bench.run import run_case
-from discrepancy.bench.synth import simulate
+from discrepancy.bench.synth import simulate, simulate_between
 from discrepancy.data.episode import EpisodeData, signal_spread
 from discrepancy.data.fieldlog import (
     InputReport,
@@ -30,6 +30,7 @@ from discrepancy.report.document import markdown, text_report, to_json
 from discrepancy.twin.align import _compared_rows
 from discrepancy.twin.plant import Plan
 from discrepancy.twin.runner import SerialRunner
+from discrepancy.twin.spec import SimResult, Simulator
 from discrepancy.twin.start import PILE, StartEstimate, estimate_start, pile_shift, refit_whole_log
 from scaletwin_envs.specs import make_loader, make_soil
 
@@ -114,26 +115,42 @@ TAU = 0.2
 STEPS = 50
 
 
+PARTS = 5  # readings per control step between the steps (``TwinDigEnv.read_between``)
+
+
 @pytest.fixture(scope="module")
-def truth() -> tuple[TwinSpec, EpisodeData]:
-    """The nominal twin a user would give, and the first :data:`STEPS` rows of a dig on :data:`TRUTH`'s pile."""
+def dig() -> tuple[TwinSpec, EpisodeData, dict[str, np.ndarray]]:
+    """The nominal twin a user would give, a dig on :data:`TRUTH`'s pile, and that dig read between its control
+    steps (what a sensor filter and a late clock act on)."""
     twin = TwinSpec(make_loader("er12"), make_soil("sand"), {}, 0)
-    clean, _ = simulate(dataclasses.replace(twin, env_kwargs={"reset_noise_scale": 0.0, **TRUTH}), [], 3)
+    clean, _, between = simulate_between(dataclasses.replace(twin, env_kwargs={"reset_noise_scale": 0.0, **TRUTH}),
+                                         [], 3)
+    return twin, clean, between.signals
+
+
+@pytest.fixture(scope="module")
+def truth(dig: tuple[TwinSpec, EpisodeData, dict[str, np.ndarray]]) -> tuple[TwinSpec, EpisodeData]:
+    """The nominal twin and the first :data:`STEPS` rows of the dig."""
+    twin, clean, _ = dig
     return twin, clean.head(STEPS)
 
 
-def _seedless(clean: EpisodeData, sensor: Callable[[np.ndarray], np.ndarray], seed: int) -> EpisodeData:
-    """``clean`` as a log without seed: each channel through ``sensor``, plus white noise of 0.3 % of its spread."""
+def _seedless(clean: EpisodeData, sensor: Callable[[str], np.ndarray], seed: int) -> EpisodeData:
+    """``clean`` as a log without seed: each channel as ``sensor`` reads it (by name), plus white noise of 0.3 % of
+    its spread."""
     rng = np.random.default_rng(seed)
     spread = signal_spread(clean.signals)
-    signals = {k: sensor(v) + 0.003 * spread[k] * rng.standard_normal(len(v)) for k, v in clean.signals.items()}
+    signals = {k: sensor(k)[: len(v)] + 0.003 * spread[k] * rng.standard_normal(len(v))
+               for k, v in clean.signals.items()}
     return dataclasses.replace(clean, signals=signals, seed=None, name="field")
 
 
 @pytest.fixture(scope="module")
-def filtered_log(truth: tuple[TwinSpec, EpisodeData]) -> tuple[TwinSpec, EpisodeData]:
-    twin, clean = truth
-    return twin, _seedless(clean, lambda v: first_order_filter(v, DT, TAU), 5)
+def filtered_log(dig: tuple[TwinSpec, EpisodeData, dict[str, np.ndarray]]) -> tuple[TwinSpec, EpisodeData]:
+    """The first rows through a sensor filter of :data:`TAU` s acting between the control steps."""
+    twin, clean, fine = dig
+    return twin, _seedless(clean.head(STEPS),
+                           lambda k: first_order_filter(fine[k], DT / PARTS, TAU)[PARTS - 1::PARTS], 5)
 
 
 def test_start_and_sensor_filter_estimated_together(filtered_log: tuple[TwinSpec, EpisodeData]) -> None:
@@ -160,26 +177,36 @@ OFFSET = 0.25  # s: the log's signals lag its commands by this much
 
 
 def test_start_and_time_offset_estimated_together(truth: tuple[TwinSpec, EpisodeData],
+                                                  dig: tuple[TwinSpec, EpisodeData, dict[str, np.ndarray]],
                                                   filtered_log: tuple[TwinSpec, EpisodeData]) -> None:
     """A log whose clock runs behind its commands: fitted alone, the start takes the lag for a pile met later;
     fitted together, the offset comes out and the pile stays where it is."""
-    twin, clean = truth
-    late = _seedless(clean, lambda v: delayed(v, DT, OFFSET), 9)
+    twin, _ = truth
+    _, clean, fine = dig
+    late = _seedless(clean.head(STEPS), lambda k: delayed(fine[k], DT / PARTS, OFFSET)[PARTS - 1::PARTS], 9)
     est = estimate_start(late, SerialRunner(twin), fit_offset=True)
     assert est.offset == pytest.approx(OFFSET, abs=0.03)
     assert dict(est.options)["pile_distance"] == pytest.approx(TRUTH["pile_distance"], rel=0.02)
     assert estimate_start(filtered_log[1], SerialRunner(twin), profile_filter=True, fit_offset=True).offset == 0.0
 
 
+def _late(result: SimResult, offset: float) -> dict[str, np.ndarray]:
+    """A replay read between its control steps, delayed by ``offset`` s there and sampled at the steps."""
+    assert result.between is not None
+    fine_dt = result.between.dt
+    parts = round(DT / fine_dt)
+    return {k: delayed(v, fine_dt, offset)[parts - 1::parts] for k, v in result.between.signals.items()}
+
+
 def test_twin_read_at_the_logs_times_is_its_replay_delayed() -> None:
     """Two routes to the twin a late logger sees: a twin spec with ``time_offset`` replays what the plain replay,
-    delayed by ``delayed``, gives."""
+    read between its control steps and delayed by ``delayed`` there, gives at the steps."""
     twin = TwinSpec(make_loader("er12"), make_soil("sand"), {}, 2)
     commands = simulate(twin, [], 2)[0].commands[:30]
-    plain = SerialRunner(twin).run_many(commands, [Plan()])[0]
+    plain = Simulator(twin).run(commands, between=True)
     late = SerialRunner(dataclasses.replace(twin, time_offset=0.17)).run_many(commands, [Plan()])[0]
     for k in ("F21", "lift_extension", "travel_speed"):
-        np.testing.assert_allclose(late.signals[k], delayed(plain.signals[k], DT, 0.17), rtol=0, atol=1e-9)
+        np.testing.assert_allclose(late.signals[k], _late(plain, 0.17)[k], rtol=0, atol=1e-9)
     x = np.linspace(0.0, 3.0, 31)
     np.testing.assert_allclose(delayed(2.0 * x, DT, 0.2)[5:], 2.0 * (x[5:] - 0.2), atol=1e-12)  # a ramp, 0.2 s late
 
@@ -191,11 +218,11 @@ def test_a_log_leading_its_commands_ends_with_the_last_command_held() -> None:
     twin = TwinSpec(make_loader("er12"), make_soil("sand"), {}, 2)
     commands = simulate(twin, [], 2)[0].commands[:30]
     longer = np.concatenate((commands, np.repeat(commands[-1:], 2, axis=0)))
-    plain = SerialRunner(twin).run_many(longer, [Plan()])[0]
+    plain = Simulator(twin).run(longer, between=True)
     early = SerialRunner(dataclasses.replace(twin, time_offset=-0.17)).run_many(commands, [Plan()])[0]
     assert early.error is None and len(early.phases) == 30
     for k in ("F21", "lift_extension", "travel_speed"):
-        np.testing.assert_allclose(early.signals[k], delayed(plain.signals[k], DT, -0.17)[:30], rtol=0, atol=1e-9)
+        np.testing.assert_allclose(early.signals[k], _late(plain, -0.17)[k][:30], rtol=0, atol=1e-9)
     frozen = delayed(plain.signals["lift_extension"][:30], DT, -0.17)  # the twin's last sample held instead
     assert not np.allclose(early.signals["lift_extension"][-2:], frozen[-2:], rtol=0, atol=1e-6)
 
@@ -218,7 +245,7 @@ def test_a_start_refitted_on_the_whole_log_finds_a_pile_the_early_rows_left_off(
     """The early rows see the pile's distance better than its slope: from a start whose repose angle is 4° too
     steep, fitted on the first 20 rows, the whole-log refit brings the angle back and fits every row better."""
     twin, clean = truth
-    ep = _seedless(clean, lambda v: v, 11)
+    ep = _seedless(clean, lambda k: clean.signals[k], 11)
     steep = {**TRUTH, "boom_angle": 0.0, "bucket_angle": 0.0,
              "repose_angle": twin.soil.repose_angle + np.radians(4.0)}
     early = StartEstimate(tuple(sorted(steep.items())), math.nan, math.nan, 0, rows=20)
@@ -283,10 +310,9 @@ def test_a_log_leading_its_commands_is_compared_only_where_its_commands_are_know
     twin = TwinSpec(make_loader("er12"), make_soil("sand"), {}, 2)
     commands = simulate(twin, [], 2)[0].commands[:30].copy()
     commands[28:] = [0.0, 0.0, -1.0]  # the last two rows: the lift stops and the machine reverses
-    truth = SerialRunner(twin).run_many(commands, [Plan()])[0]
+    truth = Simulator(twin).run(commands, between=True)
     early = dataclasses.replace(twin, time_offset=-0.17)
-    log = EpisodeData(DT * np.arange(1, 31), commands, {k: delayed(v, DT, -0.17)
-                                                        for k, v in truth.signals.items()}, truth.phases, None)
+    log = EpisodeData(DT * np.arange(1, 31), commands, _late(truth, -0.17), truth.phases, None)
     notes: list[str] = []
     kept, spec = _compared_rows(log, early, notes)
     assert len(kept) == 28 and np.array_equal(np.asarray(spec.command_tail), commands[28:])
