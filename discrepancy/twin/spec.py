@@ -77,8 +77,9 @@ class TwinSpec:
         """Whether a replay reads the twin between its control steps to give the log's samples: a resampled log,
         or one whose channels went through a sensor filter or lag their commands. Filtered or offset from the
         control-step samples alone (a cubic or a line between them) a force jumping inside a step as a cylinder
-        reaches relief came out a median 10–18 % of a channel's range off the log at the worst row, up to several
-        ranges for an acceleration (ER12 and mini, offsets 0.05–0.2 s, filters 0.05–0.3 s)."""
+        reaches relief came out a median 14–18 % (offset) or 1–12 % (filter) of a channel's range off the log at
+        the worst row, up to several ranges for an acceleration (ER12 and mini, offsets 0.05–0.2 s, filters
+        0.05–0.3 s)."""
         return self.log_step > 0.0 or self.time_offset != 0.0 or self.sensor_tau > 0.0 or bool(self.sensor_taus)
 
     def lead_steps(self, dt: float) -> int:
