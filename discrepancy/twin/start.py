@@ -341,8 +341,9 @@ class _Fit:
         return [self.residuals(r, s) for r, s in zip(results, shifts or [0.0] * len(starts), strict=True)]
 
     def best_shift(self, probe: _Probe | None) -> _Probe | None:
-        """``probe``'s replay read at the offset of a whole-step scan (±:data:`MAX_OFFSET` s) that fits best: a
-        start for the joint fit, free (no replay)."""
+        """``probe``'s replay read at the offset of a whole-step scan (±:data:`MAX_OFFSET` s; then quarter steps
+        around the best one where the replay was read between its steps) that fits best: a start for the joint
+        fit, free (no replay)."""
         if probe is None:
             return None
         m = int(np.ceil(MAX_OFFSET / self.ep.dt))
