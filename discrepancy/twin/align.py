@@ -32,7 +32,6 @@ from discrepancy.data.fieldlog import (
     estimate_offset,
     estimate_sensor_tau,
     filtered_samples,
-    first_order_filter,
     tau_standard_error,
 )
 from discrepancy.twin.plant import Plan
@@ -71,10 +70,8 @@ def _filtered(result: SimResult, dt: float, tau: float) -> dict:
     replay was read there (a sensor filters the signal, not a line through its samples)."""
     if tau <= 0:
         return result.signals
-    if result.between is None:
-        return {k: first_order_filter(v, dt, tau) for k, v in result.signals.items()}
-    parts = round(dt / result.between.dt)
-    return {k: filtered_samples(v, dt, tau, parts) for k, v in result.between.signals.items()}
+    read, parts = _read(result, dt, len(result.phases))
+    return {k: filtered_samples(v, dt, tau, parts) for k, v in read.items()}
 
 
 def _read(result: SimResult, dt: float, rows: int) -> tuple[dict[str, np.ndarray], int]:

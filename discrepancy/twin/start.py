@@ -241,7 +241,7 @@ class _Fit:
     replays run on as far as its resampling reaches (``TwinSpec.resampling_reach``)."""
 
     def __init__(self, ep: EpisodeData, runner: Runner, rows: int, profile_filter: bool = False,
-                 lead: int = 0) -> None:
+                 lead: int = 0, between: bool = False) -> None:
         names = [s for s in MOTION if s in ep.signals and np.all(np.isfinite(ep.signals[s]))] or \
             [s for s in COMPARED if s in ep.signals and np.all(np.isfinite(ep.signals[s]))]
         self.ep, self.runner, self.rows, self.names = ep, runner, rows, names
@@ -253,8 +253,9 @@ class _Fit:
         self.profile_filter = profile_filter
         self.per_channel = False  # profile one τ per channel instead of one common τ (see the module)
         self.replays = 0
-        # a log at the control step is read late between the twin's control steps (see :meth:`_rows`)
-        self.between = runner.twin.log_step <= 0.0
+        # where a fit reads the twin late or filtered (``between``), a log at the control step reads it between
+        # its control steps (see :meth:`_rows`); a refit of a twin that carries its filter and offset does not
+        self.between = between and runner.twin.log_step <= 0.0
         self._splines: dict[int, tuple[SimResult, CubicSpline]] = {}
 
     def residuals(self, result: SimResult, shift: float = 0.0) -> _Probe | None:
@@ -402,7 +403,7 @@ def estimate_start(ep: EpisodeData, runner: Runner, profile_filter: bool = False
     nominal = runner.run_many(ep.commands, [Plan()], starts=[_start({k: c for k, (c, _) in centre.items()})])[0]
     rows = fitted_rows(nominal, len(ep))
     # the nominal replay covers the whole log, so its probe is the same whatever the fit's replays run past
-    plain = _Fit(ep, runner, rows, profile_filter)
+    plain = _Fit(ep, runner, rows, profile_filter, between=profile_filter or fit_offset)
     first = plain.residuals(nominal)
     if not fit_offset:
         return _estimate(ep, runner, centre, first, rows, profile_filter, False, 0)
@@ -422,7 +423,7 @@ def _estimate(ep: EpisodeData, runner: Runner, centre: dict[str, tuple[float, fl
     start's replay of the whole log, fitted on its first ``rows`` rows, every replay running ``lead`` control steps
     past them."""
     current = {k: c for k, (c, _) in centre.items()}
-    fit = _Fit(ep, runner, rows, profile_filter, lead)
+    fit = _Fit(ep, runner, rows, profile_filter, lead, between=profile_filter or fit_offset)
     fit.replays += 1
     default = misfit(first)
     angles_seen = len(_head_channels(ep)) >= len(ANGLES)

@@ -176,7 +176,7 @@ def test_the_start_fit_reads_a_lead_of_less_than_a_step_between_the_steps(twin: 
     signals = {k: clean.signals[k] for k in COMPARED if k in clean.signals}
     log = resample(clean.time, clean.commands, signals, Condition("offset", offset_s=offset), dt, between)
     ep = EpisodeData(log.time, log.commands, log.truth, np.full(len(log.time), "", dtype=object), None)
-    fit = _Fit(ep, SerialRunner(twin), rows=60)
+    fit = _Fit(ep, SerialRunner(twin), rows=60, between=True)
     assert fit.between
     replay = SerialRunner(twin).run_many(ep.commands[: fit.replayed], [Plan()], between=True)[0]
     best = fit.best_shift(fit.residuals(replay))
