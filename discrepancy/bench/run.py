@@ -29,7 +29,15 @@ from discrepancy.bench.cases import Case, make_cases
 from discrepancy.bench.logs import Condition
 from discrepancy.bench.scoring import truth_pairs
 from discrepancy.bench.sensor_noise import channel_range
-from discrepancy.bench.synth import Synthetic, aligned, field_recording, simulate, simulate_between, twin_file
+from discrepancy.bench.synth import (
+    Synthetic,
+    aligned,
+    field_recording,
+    nominal_replay,
+    simulate,
+    simulate_between,
+    twin_file,
+)
 from discrepancy.data.episode import signal_spread
 from discrepancy.effects import UNEXPLAINED, Effect, Scales
 from discrepancy.pipeline import DiagnoseOptions, Diagnosis, diagnose
@@ -83,13 +91,14 @@ def _matches(planted: list[Effect], scales: Scales, d: Diagnosis) -> list[dict[s
 
 
 def _after_before(syn: Synthetic, d: Diagnosis, names: set[str]) -> float | None:
-    """|corrected − clean| / |twin − clean| on the held-out cycle over the effect's signals (noise-scaled): the
-    residual after the correction relative to before (0 perfect, 1 no change)."""
+    """|corrected − reading| / |twin − reading| on the held-out cycle over the effect's signals (noise-scaled; the
+    reading: what noise-free sensors of the case deliver, ``Synthetic.reading``): the residual after the correction
+    relative to before (0 perfect, 1 no change)."""
     runs = d.traces.get(syn.noisy.name)
     ep = next((h for h in d.held_out if h.name == syn.noisy.name), None)
     if not runs or not names or ep is None:
         return None
-    clean = aligned(syn.clean, ep.time)
+    clean = aligned(syn.reading if syn.reading is not None else syn.clean, ep.time)
     num = den = 0.0
     for s in names:
         if s not in runs["twin"].signals or s not in runs["corrected"].signals:
@@ -140,6 +149,9 @@ def _run(case: Case, options: DiagnoseOptions | None, folder: Path) -> dict[str,
         clean, _, between = simulate_between(case.twin, planted, seed, case.extra(), name=name)
         recs.append(field_recording(clean, control_dt, case.noise, cond, ranges, sub, folder, between))
     real, held = recs
+    # the scoring's reference: the nominal twin on the analysed cycle's commands, read by the same sensors and log
+    ref_clean, ref_between = nominal_replay(case.twin, real.clean)
+    reference = field_recording(ref_clean, control_dt, case.noise, cond, ranges, 0, folder / "nominal", ref_between)
     if cond.field_log:
         for r in recs:
             if r.noisy.seed is not None:
@@ -148,7 +160,8 @@ def _run(case: Case, options: DiagnoseOptions | None, folder: Path) -> dict[str,
     t1 = time.perf_counter()
     d = diagnose(real.noisy, twin, held_out=[held.noisy], options=options)
     named = [(e.effect, e.target) for e in d.effects]
-    truth, dont_care = truth_pairs(real, d)
+    truth, dont_care = truth_pairs(real, reference, d.train.time, d.names, None if d.noise is None else d.noise.twin,
+                                   case.noise, ranges)
     located = {(loc.signal, loc.phase) for loc in d.located}
     after_before = _after_before(held, d, {s for s, _ in truth}) if planted else None
     return {

@@ -2,11 +2,13 @@
 per input condition), and the per-case CSV.
 
 Localisation truth: a (signal, phase) pair shows the effect when, in some window of that phase, the noise-free
-planted recording differs from the nominal twin by a noncentrality Σ (r / σ)² ≥ :data:`SHOWS` (σ: the planted
-sensor noise combined with the twin's own spread, as the tool sees it), and does not when every window stays below
-:data:`HIDDEN`; pairs in between are too faint to call either way and are left out of the F1 ("don't care"); the
-table also gives the strict F1 that counts them as negatives. The truth is compared at the tool's own sample times
-(a field log is resampled by the tool). Cases that raised are counted apart (``errors``) and scored nowhere else.
+reading of the planted recording (through the case's sensors and log) differs from that of the nominal twin on the
+same commands from the same start by a noncentrality r' C⁻¹ r ≥ :data:`SHOWS` (C: the planted sensor noise's
+covariance, coloured as its family is, plus the twin's own spread as the tool sees it), and does not when every
+window stays below :data:`HIDDEN`; pairs in between are too faint to call either way and are left out of the F1
+("don't care"); the table also gives the strict F1 that counts them as negatives. The truth is compared at the
+tool's own sample times (a field log is resampled by the tool's loader, both readings alike). Cases that raised
+are counted apart (``errors``) and scored nowhere else.
 
 Issue 14's targets, per noise family and per input condition: nulls clean (nothing named, nothing ``unexplained``)
 ≥ 95 %, single top-1 ≥ 90 %, both of two effects named ≥ 80 %, out-of-catalogue ``unexplained`` ≥ 90 %, a named
@@ -16,14 +18,14 @@ single effect's parameter within 25 % of the truth in ≥ 90 % of cases, held-ou
 from __future__ import annotations
 
 from collections import defaultdict
-from collections.abc import Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
+from discrepancy.bench.sensor_noise import DRIFT_REF_S, WHITE_SHARE, NoiseSpec
 from discrepancy.bench.synth import Synthetic, aligned
-from discrepancy.pipeline import Diagnosis
-from discrepancy.stats.locate import window_stats, windows
+from discrepancy.stats.locate import windows
 
 SHOWS, HIDDEN = 40.0, 10.0
 #: Targets: issue 14's (top-1, set, double, null, ooc, within-25 %, after/before) and the older ones it keeps
@@ -40,29 +42,66 @@ LOWER_IS_BETTER = frozenset({"param_error", "after_before"})
 Pair = tuple[str, str]
 
 
-def truth_pairs(real: Synthetic, d: Diagnosis) -> tuple[set[Pair], set[Pair]]:
-    """(pairs that show the effect, pairs too faint to call) on the analysed cycle."""
-    runs = d.traces.get(real.noisy.name)
-    if runs is None or d.noise is None:
+def truth_pairs(real: Synthetic, nominal: Synthetic, time: np.ndarray, names: Sequence[str],
+                twin_spread: np.ndarray | None, noise: NoiseSpec, ranges: Mapping[str, float]
+                ) -> tuple[set[Pair], set[Pair]]:
+    """(pairs that show the effect, pairs too faint to call) on the analysed cycle.
+
+    The effect as the tool could see it: the planted recording's noise-free reading (``real.reading``: filtered,
+    offset, resampled by the tool's loader, as its sensors deliver it) minus the nominal twin's, replaying the same
+    commands from the same true start through the same sensors and log (``nominal.reading``), at the tool's sample
+    times ``time`` (s) of its compared signals ``names``. So neither the tool's estimate of the start, filter or
+    offset, nor its mismatch with the truth, counts as the effect. Each window's noncentrality is ``r' C⁻¹ r``,
+    ``C`` the covariance of the planted sensor noise (:func:`noise_covariance`; ``ranges``: each channel's range,
+    SI, that the noise amplitudes are fractions of) plus the twin's own spread as the tool sees it
+    (``twin_spread``: (rows, signals), the diagnosis's ``NoiseModel.twin``; None: no diagnosis to judge against):
+    under coloured noise a slow difference carries less evidence than its squared size says.
+    """
+    if twin_spread is None or real.reading is None or nominal.reading is None:
         return set(), set()
-    truth = aligned(real.clean, d.train.time)
-    twin = np.stack([runs["twin"].signals[s] for s in d.names], axis=1)
-    clean = truth.matrix(d.names)
-    sd = np.array([real.noise_sd.get(s, 0.0) for s in d.names])
-    sigma = np.sqrt(sd[None, :] ** 2 + np.asarray(d.noise.twin) ** 2)
-    z = (clean - twin) / np.maximum(sigma, 1e-300)
-    z[~np.isfinite(clean)] = 0.0  # outside the truth's span (a shifted or trimmed log): nothing to judge
-    z = np.nan_to_num(z, nan=1e3)  # the twin blew up: that shows
-    wins = windows(truth.phases)
-    lam = window_stats(z, wins)
+    planted, reference = aligned(real.reading, time), aligned(nominal.reading, time)
+    phases = aligned(real.clean, time).phases
+    twin_sd = np.asarray(twin_spread)
+    wins = windows(phases)
     shows, faint = set(), set()
-    for i, w in enumerate(wins):
-        for j, s in enumerate(d.names):
-            if lam[i, j] >= SHOWS:
+    for j, s in enumerate(names):
+        if s not in planted.signals or s not in reference.signals:
+            continue
+        r = planted.signals[s] - reference.signals[s]
+        known = np.isfinite(r)  # outside the truth's span (a shifted or trimmed log): nothing to judge
+        h = float(real.meta.get("h", real.control_dt))  # type: ignore[arg-type]
+        cov_of = noise_covariance(noise, s, ranges.get(s, 1.0), real.noise_sd.get(s, 0.0), time - time[0],
+                                  real.control_dt, h)
+        for w in wins:
+            rows = np.arange(w.start, w.stop)[known[w.start:w.stop]]
+            if not len(rows):
+                continue
+            cov = cov_of(rows) + np.diag(twin_sd[rows, j] ** 2)
+            cov += np.diag(np.full(len(rows), 1e-12 * max(float(np.max(np.diag(cov))), 1e-300)))
+            lam = float(r[rows] @ np.linalg.solve(cov, r[rows]))
+            if lam >= SHOWS:
                 shows.add((s, w.phase))
-            elif lam[i, j] >= HIDDEN:
+            elif lam >= HIDDEN:
                 faint.add((s, w.phase))
     return shows, faint - shows
+
+
+def noise_covariance(noise: NoiseSpec, channel: str, span: float, sd: float, elapsed: np.ndarray, control_dt: float,
+                     h: float) -> Callable[[np.ndarray], np.ndarray]:
+    """The covariance of the planted additive noise of ``channel`` on the tool's control-step rows, as a function of
+    the rows of a window: ``ar1`` ``sd² ρ^|i−j|`` (ρ at the control step, ``sd`` its standard deviation after the
+    tool's resampling); ``drift`` the random walk's ``(a·span)² min(t_i, t_j) / t_ref`` (``a`` the channel's
+    amplitude, ``span`` its range, ``elapsed`` s since the log's first sample) plus its white share averaged over
+    the ``control_dt / h`` log samples of a step; the other families white ``sd²`` (quantisation, and the white
+    noise behind a sensor filter)."""
+    if noise.family == "ar1":
+        return lambda rows: sd**2 * noise.rho ** np.abs(rows[:, None] - rows[None, :]).astype(float)
+    if noise.family == "drift":
+        amp = noise.amplitude(channel) * span
+        walk = amp**2 * np.maximum(np.asarray(elapsed, float), 0.0) / DRIFT_REF_S
+        white = (WHITE_SHARE * amp) ** 2 / max(1.0, round(control_dt / h))
+        return lambda rows: np.minimum(walk[rows][:, None], walk[rows][None, :]) + white * np.eye(len(rows))
+    return lambda rows: sd**2 * np.eye(len(rows))
 
 
 def _f1(tp: int, fp: int, fn: int) -> float:

@@ -10,6 +10,7 @@ the provenance), never the planted physics.
 
 from __future__ import annotations
 
+import dataclasses
 import inspect
 import math
 from collections.abc import Mapping, Sequence
@@ -25,7 +26,7 @@ from discrepancy.data.episode import EpisodeData, load_episode, signal_spread
 from discrepancy.effects import Effect
 from discrepancy.twin.env import PhysicsParams, TwinDigEnv
 from discrepancy.twin.plant import apply_sensors, plan
-from discrepancy.twin.spec import Between, TwinSpec
+from discrepancy.twin.spec import Between, Simulator, TwinSpec
 from scaletwin_envs.policies import ScriptedDigPolicy
 
 
@@ -39,6 +40,10 @@ class Synthetic:
     control_dt: float = float("nan")
     path: Path | None = None  # the field log the tool reads (None: ``noisy`` is handed over in memory)
     meta: dict[str, object] = field(default_factory=dict)
+    #: what the case's sensors read without their additive noise (filtered, offset, at the log's rate), delivered
+    #: the same way as ``noisy`` (through the tool's loader for a field log): what the tool would get from
+    #: noise-free sensors of this kind (the scoring's truth, :func:`~discrepancy.bench.scoring.truth_pairs`)
+    reading: EpisodeData | None = None
 
 
 #: Instants per control step at which the benchmark's sensor filter acts on the truth between the control steps:
@@ -152,13 +157,33 @@ def field_recording(clean: EpisodeData, control_dt: float, noise: NoiseSpec, con
                         {k: log.fine[k] for k in channels}, log.parts)
     sd = {k: _control_step_sd(log.time, v, control_dt) for k, v in noisy.noise.items()}
     if not cond.field_log:
-        ep = EpisodeData(clean.time.copy(), clean.commands.copy(), noisy.measured, clean.phases.copy(), clean.seed,
-                         clean.machine, clean.soil, dict(clean.env_kwargs), clean.name)
-        return Synthetic(ep, clean, sd, control_dt)
+        ep, reading = (EpisodeData(clean.time.copy(), clean.commands.copy(), signals, clean.phases.copy(), clean.seed,
+                                   clean.machine, clean.soil, dict(clean.env_kwargs), clean.name)
+                       for signals in (noisy.measured, noisy.sensor))
+        return Synthetic(ep, clean, sd, control_dt, reading=reading)
     if folder is None:
         raise ValueError(f"condition {cond.name!r} writes a field log: give a folder")
     path = write_csv(Path(folder) / f"{clean.name}.csv", log.time, log.commands, noisy.measured)
-    return Synthetic(_load(path, control_dt), clean, sd, control_dt, path, {"rows": len(log.time), "h": log.h})
+    quiet = write_csv(Path(folder) / "noise-free" / f"{clean.name}.csv", log.time, log.commands, noisy.sensor)
+    return Synthetic(_load(path, control_dt), clean, sd, control_dt, path, {"rows": len(log.time), "h": log.h},
+                     _load(quiet, control_dt))
+
+
+def nominal_replay(twin: TwinSpec, clean: EpisodeData) -> tuple[EpisodeData, Between]:
+    """The nominal ``twin`` replaying the commands of the recording ``clean`` open loop from its true start (its
+    reset seed), noise-free, at the control step and between the steps: what the recording would have been without
+    the planted physics, for the same commands (the scoring's reference; the tool itself never has the seed).
+
+    Raises:
+        RuntimeError: the nominal twin did not run through the commands.
+    """
+    sim = Simulator(dataclasses.replace(twin, seed=clean.seed)).run(clean.commands, between=True)
+    if sim.error or sim.between is None:
+        raise RuntimeError(f"{clean.name}: the nominal twin failed replaying the recording's commands ({sim.error})")
+    signals = {k: np.asarray(v, float) for k, v in sim.signals.items() if k in clean.signals}
+    ep = EpisodeData(clean.time.copy(), clean.commands.copy(), signals, np.asarray(sim.phases, dtype=object),
+                     clean.seed, clean.machine, clean.soil, dict(clean.env_kwargs), f"{clean.name}_nominal")
+    return ep, Between(sim.between.dt, {k: v for k, v in sim.between.signals.items() if k in signals})
 
 
 def twin_file(twin: TwinSpec, folder: Path) -> Path:

@@ -400,10 +400,12 @@ def estimate_start(ep: EpisodeData, runner: Runner, profile_filter: bool = False
     AR(1) 2.3 % of range, ended at a misfit of 30.6 against the nominal start's 5.4, and 43 windows located)."""
     twin = runner.twin
     centre = _nominal(dict(twin.env_kwargs), twin.soil.repose_angle)
-    nominal = runner.run_many(ep.commands, [Plan()], starts=[_start({k: c for k, (c, _) in centre.items()})])[0]
+    between = profile_filter or fit_offset  # read as every replay of the fit is (see _Fit)
+    nominal = runner.run_many(ep.commands, [Plan()], starts=[_start({k: c for k, (c, _) in centre.items()})],
+                              between=between)[0]
     rows = fitted_rows(nominal, len(ep))
     # the nominal replay covers the whole log, so its probe is the same whatever the fit's replays run past
-    plain = _Fit(ep, runner, rows, profile_filter, between=profile_filter or fit_offset)
+    plain = _Fit(ep, runner, rows, profile_filter, between=between)
     first = plain.residuals(nominal)
     if not fit_offset:
         return _estimate(ep, runner, centre, first, rows, profile_filter, False, 0)
