@@ -63,13 +63,13 @@ def truth_pairs(real: Synthetic, nominal: Synthetic, time: np.ndarray, names: Se
     phases = aligned(real.clean, time).phases
     twin_sd = np.asarray(twin_spread)
     wins = windows(phases)
+    h = float(real.meta.get("h", real.control_dt))  # type: ignore[arg-type]  # the log's sampling step, s
     shows, faint = set(), set()
     for j, s in enumerate(names):
         if s not in planted.signals or s not in reference.signals:
             continue
         r = planted.signals[s] - reference.signals[s]
         known = np.isfinite(r)  # outside the truth's span (a shifted or trimmed log): nothing to judge
-        h = float(real.meta.get("h", real.control_dt))  # type: ignore[arg-type]
         cov_of = noise_covariance(noise, s, ranges.get(s, 1.0), real.noise_sd.get(s, 0.0), time - time[0],
                                   real.control_dt, h)
         for w in wins:
