@@ -39,9 +39,9 @@ import pandas as pd
 
 import zoo
 from scaletwin_envs.host import host_line
-from scaling.data.product_line import design_descriptor, match_rows, nearest_machines, on_branch
+from scaling.data.product_line import at_stroke_end, design_descriptor, match_rows, nearest_machines, on_branch
 from scaling.evaluation.conformal import ExtrapolationScore
-from scaling.evaluation.generalisation import LeaveMachineOut, judged_rows
+from scaling.evaluation.generalisation import MISS, LeaveMachineOut, judged_rows
 from scaling.evaluation.metrics import at_rest
 from scaling.runs.provenance import code_version
 
@@ -61,7 +61,8 @@ PREDICTORS = ("ln_abs_log_delta_p90", "risk_median", "static_share", "ln_design_
 
 def machine_rows(model: zoo.ScalingModel, target: pd.DataFrame, sources: list[pd.DataFrame]) -> pd.DataFrame:
     """Per judged target row: the log error, the served half-width (ln units), |ln δ1|, the served risk, at rest,
-    and ln F21 predicted from each source (the first is the served prediction)."""
+    the tilt cylinder at a stroke end (:func:`~scaling.data.product_line.at_stroke_end`) and ln F21 predicted from
+    each source (the first is the served prediction)."""
     tgt = target[judged_rows(target)].reset_index(drop=True)
     outs = []
     for src in sources:
@@ -76,7 +77,7 @@ def machine_rows(model: zoo.ScalingModel, target: pd.DataFrame, sources: list[pd
         rows = pd.DataFrame({"log_error": np.log(truth / first.force), "half_width": half,
                              "abs_log_delta": np.abs(np.log(first.delta1)),
                              "risk": first.risk if first.risk is not None else np.nan,
-                             "static": at_rest(tgt).astype(float),
+                             "static": at_rest(tgt).astype(float), "stroke_end": at_stroke_end(tgt),
                              "source_spread": logs.std(axis=0)})
     return rows[np.isfinite(rows["log_error"]) & (rows["half_width"] > 0)].reset_index(drop=True)
 
@@ -90,13 +91,17 @@ def summarise(name: str, line: str, rows: pd.DataFrame, ratio: np.ndarray, desig
               ) -> dict[str, float | str]:
     """One machine's needs (``ratio``: :func:`ratios_of` its ``rows``) and its machine-level predictors."""
     q85, q90, q95, q50 = np.quantile(ratio, [0.85, 0.90, 0.95, 0.50])
+    end = rows["stroke_end"].to_numpy(bool)
+    miss = np.abs(rows["log_error"].to_numpy()) > np.log1p(MISS)
     return {"line": line, "machine": name, "rows": len(rows), "coverage": float(np.mean(ratio <= 1.0)),
             "k": float(q90), "k_median": float(q50), "tolerance_up": float(np.log(q95 / q90)),
             "tolerance_down": float(np.log(q90 / q85)), "q85": float(q85), "q95": float(q95),
             "ln_abs_log_delta_p90": float(np.log(np.quantile(rows["abs_log_delta"], 0.9))),
             "risk_median": float(np.nanmedian(rows["risk"])) if rows["risk"].notna().any() else float("nan"),
             "static_share": float(rows["static"].mean()), "ln_design_distance": float(np.log(design_distance)),
-            "ln_source_spread": float(np.log(np.median(rows["source_spread"]) + 1e-9))}
+            "ln_source_spread": float(np.log(np.median(rows["source_spread"]) + 1e-9)),
+            "stroke_end_share": float(end.mean()), "misses": int(miss.sum()), "misses_at_end": int((miss & end).sum()),
+            "coverage_off_end": float(np.mean(ratio[~end] <= 1.0)) if (~end).any() else float("nan")}
 
 
 def in_band(coverage: np.ndarray) -> np.ndarray:
@@ -228,11 +233,26 @@ def report(table: pd.DataFrame, oracles: dict[str, float], predictors: dict[str,
               "| predictor | Spearman ρ with ln k (test) | log-SD of the error in ln k (test) |", "|---|---|---|"]
     for key, (rho, sd) in predictors.items():
         lines.append(f"| {key} | {'–' if np.isnan(rho) else f'{rho:.2f}'} | {sd:.2f} |")
-    lines += ["", "Per machine:", "", "| line | machine | rows | coverage | k | k median | tolerance up / down |",
-              "|---|---|---|---|---|---|---|"]
+    lines += ["", f"Where the rows more than {MISS:.0%} off lie: with the tilt cylinder at an end of its stroke "
+              "(`scaling.data.product_line.at_stroke_end`), where its end stop carries load no pressure sees and the "
+              "linkage statics the model's π1 rests on do not hold:", "",
+              "| machines | with rows at a stroke end | rows at a stroke end | rows more than "
+              f"{MISS:.0%} off | of them at a stroke end | in 85–95 % with the stroke-end rows left out |",
+              "|---|---|---|---|---|---|"]
+    for label, part in (("calibration", cal), ("test", test)):
+        shares = part["stroke_end_share"]
+        lines.append(f"| {label} | {int((shares > 0).sum())} of {len(part)} | "
+                     f"{float((shares * part['rows']).sum() / part['rows'].sum()):.1%} | {int(part['misses'].sum())} | "
+                     f"{int(part['misses_at_end'].sum())} | {int(in_band(part['coverage_off_end'].to_numpy()).sum())} "
+                     f"of {len(part)} |")
+    lines += ["", "Per machine:", "", "| line | machine | rows | coverage | k | k median | tolerance up / down | "
+              f"at a stroke end | more than {MISS:.0%} off (at the end) | coverage off the end |",
+              "|---|---|---|---|---|---|---|---|---|---|"]
     for _, r in table.iterrows():
         lines.append(f"| {r['line']} | {r['machine']} | {r['rows']} | {r['coverage']:.2f} | {r['k']:.2f} | "
-                     f"{r['k_median']:.2f} | {r['tolerance_up']:.2f} / {r['tolerance_down']:.2f} |")
+                     f"{r['k_median']:.2f} | {r['tolerance_up']:.2f} / {r['tolerance_down']:.2f} | "
+                     f"{r['stroke_end_share']:.1%} | {r['misses']} ({r['misses_at_end']}) | "
+                     f"{r['coverage_off_end']:.2f} |")
     return "\n".join(lines) + "\n"
 
 
