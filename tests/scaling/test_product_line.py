@@ -20,6 +20,7 @@ from scaling.data.product_line import (
     LINKAGE_GROUPS,
     ProductLine,
     add_design_signals,
+    at_stroke_end,
     design_descriptor,
     machine_folds,
     match_rows,
@@ -278,6 +279,40 @@ def test_rows_whose_linkage_left_its_branch_are_neither_judged_nor_trained_on() 
     assert not judged[flipped] and judged[10:].sum() == 19  # the first 10 rows settle
     kept = training_rows(out, ())
     assert len(kept) == 19 and flipped * 0.1 not in set(np.round(kept["t"], 9))
+
+
+def test_at_stroke_end_flags_rows_within_the_margin_of_either_end() -> None:
+    stroke = np.array([-0.003, 0.0, 0.004, 0.006, 0.5, 0.994, 0.996, 1.002, np.nan])
+    frame = pd.DataFrame({"tilt_stroke": stroke})
+    np.testing.assert_array_equal(at_stroke_end(frame), [True, True, True, False, False, False, True, True, False])
+    np.testing.assert_array_equal(at_stroke_end(frame, margin=0.0), [True, True] + [False] * 5 + [True, False])
+    assert not at_stroke_end(pd.DataFrame({"F21": [1.0, 2.0]})).any()  # no design signals: nothing flagged
+
+
+def test_a_tilt_cylinder_driven_onto_its_end_stop_carries_more_than_its_pressure() -> None:
+    """The held-out machine pl1-6 (seed-1 test line of the leave-machine-out layout) pressing its bucket on the
+    ground in a hold: the ground overruns the tilt cylinder's relief valve and drives it onto its closed end. The
+    oil then pushes at relief (tilt load 1) and the end stop pushes with it, so the rod, and through the bell crank
+    link B, carries more than the pressure says: F21 exceeds tilt_ratio · |Pf_tilt| by 11–18 % on every row at the
+    end (at_stroke_end), while at rest off the end the same episode's F21 is that statics within 3 %. Neither the
+    pressure nor the pose tells how much the stop carries: these are the rows where F21 cannot be scaled from the
+    tilt pressure (~5 s)."""
+    from scaling.data.recordings import simulate_episode
+    from scaling.evaluation.generalisation import LeaveMachineOut
+
+    line = LeaveMachineOut(test_seed=1).lines()[1]
+    holds = [task for label, kind, task in line.dataset_spec().tasks() if label == "pl1-6" and kind == "hold"]
+    frame = add_design_signals(simulate_episode(holds[2]).assign(machine="pl1-6"), line.specs())
+    ratio = frame["F21"] / frame["F21_linkage"]
+    end = at_stroke_end(frame)
+    assert end.sum() >= 50 and (frame["tilt_stroke"][end] < 0.01).all()  # the closed end
+    assert (frame["tilt_load"][end] > 0.95).all() and (frame["Pf_tilt"][end] > 0).all()  # the oil at relief, pushing
+    assert (frame["R_z"][end] < 0).all()  # the ground presses the bucket
+    assert ratio[end].min() > 1.10, ratio[end].describe().to_dict()
+    rest = ~end & (frame["a1"] < 0.05) & (frame["alpha1"] < 0.05) & frame["tilt_stroke"].between(0.02, 0.98) \
+        & (frame["tilt_load"] > 0.05)
+    assert rest.sum() >= 30
+    assert (ratio[rest] - 1).abs().max() < 0.03, ratio[rest].describe().to_dict()
 
 
 def test_training_pairs_take_sources_from_other_machines(line_frame: pd.DataFrame) -> None:
