@@ -39,10 +39,10 @@ import pandas as pd
 
 import zoo
 from scaletwin_envs.host import host_line
-from scaling.data.product_line import at_stroke_end, design_descriptor, match_rows, nearest_machines, on_branch
+from scaling.data.product_line import design_descriptor, match_rows, nearest_machines, on_branch
 from scaling.evaluation.conformal import ExtrapolationScore
 from scaling.evaluation.generalisation import MISS, LeaveMachineOut, judged_rows
-from scaling.evaluation.metrics import at_rest
+from scaling.evaluation.metrics import at_rest, at_stroke_end
 from scaling.runs.provenance import code_version
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -61,7 +61,7 @@ PREDICTORS = ("ln_abs_log_delta_p90", "risk_median", "static_share", "ln_design_
 
 def machine_rows(model: zoo.ScalingModel, target: pd.DataFrame, sources: list[pd.DataFrame]) -> pd.DataFrame:
     """Per judged target row: the log error, the served half-width (ln units), |ln δ1|, the served risk, at rest,
-    the tilt cylinder at a stroke end (:func:`~scaling.data.product_line.at_stroke_end`) and ln F21 predicted from
+    the tilt cylinder at a stroke end (:func:`~scaling.evaluation.metrics.at_stroke_end`) and ln F21 predicted from
     each source (the first is the served prediction)."""
     tgt = target[judged_rows(target)].reset_index(drop=True)
     outs = []
@@ -234,7 +234,7 @@ def report(table: pd.DataFrame, oracles: dict[str, float], predictors: dict[str,
     for key, (rho, sd) in predictors.items():
         lines.append(f"| {key} | {'–' if np.isnan(rho) else f'{rho:.2f}'} | {sd:.2f} |")
     lines += ["", f"Where the rows more than {MISS:.0%} off lie: with the tilt cylinder at an end of its stroke "
-              "(`scaling.data.product_line.at_stroke_end`), where its end stop carries load no pressure sees and the "
+              "(`scaling.evaluation.metrics.at_stroke_end`), where its end stop carries load no pressure sees and the "
               "linkage statics the model's π1 rests on do not hold:", "",
               "| machines | with rows at a stroke end | rows at a stroke end | rows more than "
               f"{MISS:.0%} off | of them at a stroke end | in 85–95 % with the stroke-end rows left out |",

@@ -25,7 +25,16 @@ from zoo.loading import builders, load, register_builder
 from zoo.policy import ZooPolicy, load_policy, save_policy
 from zoo.registry import REGISTRY_PATH, ZOO_ROOT, card, list_checkpoints, register, resolve
 from zoo.scaling_kind import save_scaling_model
-from zoo.serving import ExtrapolationWarning, InputError, Prediction, ScaledForce, ScalingModel, SourceWarning, Stream
+from zoo.serving import (
+    EndStopWarning,
+    ExtrapolationWarning,
+    InputError,
+    Prediction,
+    ScaledForce,
+    ScalingModel,
+    SourceWarning,
+    Stream,
+)
 
 list = list_checkpoints  # the public name: zoo.list()
 
@@ -34,6 +43,7 @@ __all__ = [
     "REGISTRY_PATH",
     "ZOO_ROOT",
     "CheckpointError",
+    "EndStopWarning",
     "ExtrapolationWarning",
     "InputError",
     "Prediction",

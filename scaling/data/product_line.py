@@ -17,8 +17,6 @@ and traction (:mod:`scaletwin_envs.design_space`). This module turns such a line
   length on the design's assembly branch (``pitch_gap``, from :func:`add_design_signals`). Where it does not, the
   simulated linkage has left its branch (a simulator artefact: the Z-bar flipped over under a rack-back at relief)
   and the statics the design signals rest on do not hold: such rows are neither trained on, matched nor judged;
-* :func:`at_stroke_end`: whether a row's tilt cylinder sits at an end of its stroke, where its end stop carries
-  load that no pressure sees and F21 is not the linkage statics of ``Pf_tilt``;
 * :func:`match_rows`: for each target row the source row of the same kind (dig or hold) nearest in pose and fill:
   δ1 between matched rows measures the machines' difference, not the difference between two moments of a cycle;
 * :func:`training_pairs`: every row of every machine as a target, with matched rows of other machines as sources,
@@ -62,11 +60,6 @@ MATCH_WEIGHTS: tuple[float, ...] = (1.0, 1.0, 1.0)
 #: on four hold episodes of ``pl0-14``, ``pl0-24`` and ``pl0-25``, whose Z-bar flipped over in the final rack-back
 #: at relief, 0.9–1.9 rad on 404 rows (none between 0.3 and 0.9 rad).
 BRANCH_TOLERANCE = 0.3
-#: Distance from either end of the tilt stroke (fraction of the stroke) within which a row counts as at the end: the
-#: simulated cylinder runs up to 0.33 % of its stroke past its closed length under load (the joint limit's
-#: softness; seed-0 layout, rows as in :func:`at_stroke_end`): 5235 of that layout's rows lie within 0.5 % of an end,
-#: 5162 within 0.2 %.
-STROKE_END_MARGIN = 0.005
 
 
 @dataclass(frozen=True)
@@ -198,25 +191,6 @@ def on_branch(frame: pd.DataFrame, tolerance: float = BRANCH_TOLERANCE) -> np.nd
     if "pitch_gap" not in frame.columns:
         return np.ones(len(frame), dtype=bool)
     return ~(frame["pitch_gap"].to_numpy(float) > tolerance)
-
-
-def at_stroke_end(frame: pd.DataFrame, margin: float = STROKE_END_MARGIN) -> np.ndarray:
-    """Mask of the rows whose tilt cylinder is within ``margin`` (fraction of its stroke) of either end of its
-    stroke (``tilt_stroke``, from :func:`add_design_signals`); all False without that column.
-
-    There the cylinder's end stop carries what the oil does not: the pin force is set by the load on the bucket
-    and the stop, not by the cylinder's pressure, and F21 = tilt_ratio · |Pf_tilt| (``F21_linkage``, the
-    normaliser of :data:`PI1_LINKAGE`) no longer holds. Measured on the seed-0 layout (65 machines, its rows
-    with F21 above 5 % of the machine's peak after the first second, 2026-11-28): 3.8 % of the rows are at an end
-    (all at the retracted one; up to 59 % of a machine's dig rows), and every one of the 3746 rows where the
-    linkage statics err by more than 10 % is among them (4780 of the 4784 beyond 3 %), each with the bucket
-    pressed on the ground or the pile (a vertical soil force of at least 1.8 kN); at the end the statics err 17 %
-    (median), 55 % (90th percentile).
-    """
-    if "tilt_stroke" not in frame.columns:
-        return np.zeros(len(frame), dtype=bool)
-    stroke = frame["tilt_stroke"].to_numpy(float)
-    return (stroke <= margin) | (stroke >= 1.0 - margin)
 
 
 def match_rows(source: pd.DataFrame, target: pd.DataFrame, keys: Sequence[str] = MATCH_KEYS,

@@ -63,7 +63,7 @@ from scaling.evaluation.conformal import (
     RowRisk,
     auroc,
 )
-from scaling.evaluation.metrics import after_settling, at_rest, in_domain
+from scaling.evaluation.metrics import after_settling, at_rest, at_stroke_end, in_domain
 from scaling.models import DeepEnsemble, DeltaModel
 
 #: Rows with F21 below this fraction of the machine's peak are not judged.
@@ -390,7 +390,8 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
                                     (kind == "static").astype(float)])
         g = None if models[name] is None else models[name].features(pairs)
         tilt_load = tgt["tilt_load"].to_numpy(float)[rows]
-        return _Predicted(pairs, kind, log_pred, scale, pred, f21, _errors(pred, f21), features, tilt_load, g)
+        return _Predicted(pairs, kind, log_pred, scale, pred, f21, _errors(pred, f21), features, tilt_load,
+                          at_stroke_end(tgt)[rows], g)
 
     calibrators: dict[str, GroupConformal] = {}
     spread_calibrators: dict[str, GroupConformal] = {}
@@ -434,6 +435,8 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
     served: dict[str, tuple[list[np.ndarray], list[np.ndarray]]] = {}
     served_warn_share: dict[str, dict[str, float]] = {}
     served_false_alarms: dict[str, dict[str, float]] = {}
+    stroke_end_share: dict[str, dict[str, float]] = {}
+    misses: dict[str, dict[str, dict[str, int]]] = {}
     for m in split.test:
         say(f"judging {m} (source {source_of[m]})")
         for name in models:
@@ -467,6 +470,12 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
                 served_warn_share.setdefault(name, {})[m] = float(np.mean(warned))
                 fine = p.err <= MISS
                 served_false_alarms.setdefault(name, {})[m] = float(np.mean(warned[fine])) if fine.any() else 0.0
+                stroke_end_share.setdefault(name, {})[m] = float(np.mean(p.stroke_end))
+                missed = ~fine
+                misses.setdefault(name, {})[m] = {"rows": int(missed.sum()),
+                                                  "at_stroke_end": int((missed & p.stroke_end).sum()),
+                                                  "warned": int((missed & warned).sum()),
+                                                  "flagged": int((missed & (warned | p.stroke_end)).sum())}
         tgt = judged[m]
         f21 = tgt["F21"].to_numpy(float)
         pred = tgt["tilt_ratio"].to_numpy(float) * np.abs(tgt["Pf_tilt"].to_numpy(float))
@@ -482,6 +491,7 @@ def evaluate(frame: pd.DataFrame, split: Split, candidates: Sequence[Candidate],
         "auroc_row_risk_at": {name: {str(line): auroc(np.concatenate(r), np.concatenate(e) > line)
                                      for line in MISS_LINES} for name, (r, e) in served.items()},
         "row_risk_warn_share": served_warn_share, "row_risk_false_alarms": served_false_alarms,
+        "stroke_end_share": stroke_end_share, "row_risk_misses": misses,
         "row_risk_unavailable": {name: r.unavailable for name, r in row_risks.items() if r.score is None},
         "error_score": {name: {"coef": None if e.coef_ is None else e.coef_.tolist(),
                                "threshold": e.threshold_,
@@ -507,7 +517,8 @@ ERROR_FEATURES = ("ln σ of ln δ1 (ensembles; 0 otherwise)", "ln input novelty"
 class _Predicted:
     """One model's prediction for one machine's judged rows: the pairs, each pair's row kind (:func:`row_kinds`),
     log δ1 and its scale, F21 predicted and actual (N), relative error, the error score's features
-    (:data:`ERROR_FEATURES`), the target's tilt load (1) and the model's feature rows g (None for direct-Pi)."""
+    (:data:`ERROR_FEATURES`), the target's tilt load (1), whether its tilt cylinder sits at a stroke end
+    (:func:`~scaling.evaluation.metrics.at_stroke_end`) and the model's feature rows g (None for direct-Pi)."""
 
     pairs: DeltaDataset
     kind: np.ndarray
@@ -518,6 +529,7 @@ class _Predicted:
     err: np.ndarray
     features: np.ndarray
     tilt_load: np.ndarray
+    stroke_end: np.ndarray
     g: np.ndarray | None = None
 
 

@@ -87,6 +87,19 @@ def test_every_held_out_machine_is_judged_against_the_baselines(frame: pd.DataFr
     assert set(result.extrapolation["auroc_error_score"]) == models - {"linkage statics"}
     assert set(result.extrapolation["machine_score"]) == set(split.test)
     assert result.fit_seconds["ffnn"] > 0
+    # rows more than 10 % off, counted by hand from the table; each flagged by the risk, the stroke end or both
+    from scaling.evaluation.metrics import at_stroke_end
+
+    misses = result.extrapolation["row_risk_misses"]["ffnn"]
+    assert set(misses) == set(split.test)
+    for m, count in misses.items():
+        row = table[(table["machine"] == m) & (table["model"] == "ffnn")].iloc[0]
+        assert count["rows"] == round(row.miss_share * row.rows)
+        assert max(count["at_stroke_end"], count["warned"]) <= count["flagged"] <= count["rows"]
+        assert count["flagged"] <= count["at_stroke_end"] + count["warned"]
+        share = result.extrapolation["stroke_end_share"]["ffnn"][m]
+        tgt = by[m][judged_rows(by[m])]
+        assert 0.0 <= share <= 1.0 and (share > 0) == bool(at_stroke_end(tgt).any())
 
 
 def test_product_line_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

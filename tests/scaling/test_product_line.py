@@ -20,7 +20,6 @@ from scaling.data.product_line import (
     LINKAGE_GROUPS,
     ProductLine,
     add_design_signals,
-    at_stroke_end,
     design_descriptor,
     machine_folds,
     match_rows,
@@ -46,6 +45,7 @@ from scaling.evaluation.conformal import (
     group_weighted_quantile,
     machine_level_quantile,
 )
+from scaling.evaluation.metrics import at_stroke_end
 
 LINE = ProductLine(n_machines=3, seed=0, soils=("gravel",), pile_heights=(0.7,), dig_seeds=1, hold_episodes=1,
                    hold_poses=2)

@@ -186,3 +186,38 @@ def test_product_line_risk_agrees_with_its_interval(name: str) -> None:
     assert 0.0 <= served["min"] <= served["median"] <= served["max"] <= 1.0
     warned = cross["warned"]["P(miss) ≥ 0.5 from the interval (served)"]
     assert 0.0 <= warned["median"] <= warned["max"] <= 1.0
+
+
+def test_rows_with_the_tilt_cylinder_at_a_stroke_end_are_flagged() -> None:
+    """At a stroke end the tilt cylinder's end stop carries load no pressure shows, so F21 is not the statics of
+    Pf_tilt that a product-line model scales (tests/scaling/test_product_line.py: 11–18 % more on pl1-6). The
+    served model flags exactly those rows (``stroke_end``, the ``stroke_end`` column of the table) with one
+    EndStopWarning, from one source and from three; a model that does not take the tilt stroke flags nothing."""
+    model = zoo.load(ENSEMBLE_NAME)
+    rows = check_rows(zoo.resolve(ENSEMBLE_NAME)[0])
+    ended = rows.copy()
+    pick = [0, 3, 7]
+    ended.loc[pick, "tilt_stroke [1]"] = [0.0, -0.002, 1.0]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", zoo.ExtrapolationWarning)
+        warnings.simplefilter("error", zoo.EndStopWarning)
+        clean = model.scale_force(None, rows)  # the check set's first dig cycle stays off the ends
+        assert clean.stroke_end is not None and not clean.stroke_end.any()
+        with pytest.raises(zoo.EndStopWarning, match="3 of"):
+            model.scale_force(None, ended)
+        warnings.simplefilter("ignore", zoo.EndStopWarning)
+        out = model.scale_force(None, ended)
+    assert out.stroke_end is not None and list(np.flatnonzero(out.stroke_end)) == pick
+    assert list(np.flatnonzero(out.to_frame()["stroke_end"])) == pick
+    np.testing.assert_array_equal(out.force[1:3], clean.force[1:3])  # the flag changes no prediction
+    source = model.reference.to_frame().T
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        several = model.scale_force_sources([source] * model.calibrated_sources, ended)
+    assert list(np.flatnonzero(several.stroke_end)) == pick
+    assert sum(issubclass(w.category, zoo.EndStopWarning) for w in caught) == 1
+    paper = zoo.load("ffnn-eq10")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", zoo.ExtrapolationWarning)
+        warnings.simplefilter("error", zoo.EndStopWarning)
+        assert paper.scale_force(None, check_rows(zoo.resolve("ffnn-eq10")[0])).stroke_end is None

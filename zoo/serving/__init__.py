@@ -4,8 +4,8 @@ See :class:`ScalingModel` (``zoo.load("ffnn-eq10")`` returns one) and :mod:`zoo.
 """
 
 from zoo.serving.inputs import InputError, read_table, write_table
-from zoo.serving.model import ExtrapolationWarning, ScaledForce, ScalingModel, SourceWarning
+from zoo.serving.model import EndStopWarning, ExtrapolationWarning, ScaledForce, ScalingModel, SourceWarning
 from zoo.serving.stream import Prediction, Stream
 
-__all__ = ["ExtrapolationWarning", "InputError", "Prediction", "ScaledForce", "ScalingModel", "SourceWarning", "Stream",
-           "read_table", "write_table"]
+__all__ = ["EndStopWarning", "ExtrapolationWarning", "InputError", "Prediction", "ScaledForce", "ScalingModel",
+           "SourceWarning", "Stream", "read_table", "write_table"]

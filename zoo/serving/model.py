@@ -42,7 +42,7 @@ import pandas as pd
 from scaling.dimensions.factors import LogDistortion, scaled_variable
 from scaling.dimensions.groups import PiGroup
 from scaling.evaluation.conformal import IntervalRisk, RowInterval, RowRisk
-from scaling.evaluation.metrics import at_rest
+from scaling.evaluation.metrics import at_rest, at_stroke_end
 from scaling.models import DeltaModel
 from scaling.models.fitted import STATIC_STEPS, model_groups
 from zoo.loading import load
@@ -81,6 +81,13 @@ class ExtrapolationWarning(UserWarning):
     """The target's distortions lie outside the range the model was trained on: the prediction is extrapolated."""
 
 
+class EndStopWarning(UserWarning):
+    """Target rows with the tilt cylinder at an end of its stroke (:func:`scaling.evaluation.metrics.at_stroke_end`):
+    its end stop carries load that no pressure shows, so F21 there is not the linkage statics of ``Pf_tilt`` the
+    product-line models scale, and neither the prediction nor its interval can be trusted (``ScaledForce.stroke_end``
+    per row). On the seed-0 product line every row whose linkage statics err by more than 10 % is such a row."""
+
+
 class SourceWarning(UserWarning):
     """The source row differs from the calibrated reference row the model learnt δ1 against (``model.reference``):
     δ1 = π1(source)/π1(target) was only ever learnt for that source, so predictions from another one are biased.
@@ -109,6 +116,9 @@ class ScaledForce:
     warned: np.ndarray | None = None
     #: an ensemble's σ of ln δ1 per row (the spread of its members' mixture, 1); None for a point model
     sigma: np.ndarray | None = None
+    #: the rows whose tilt cylinder sits at a stroke end (:class:`EndStopWarning`); None for a model that does not
+    #: take the tilt stroke
+    stroke_end: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.force)
@@ -120,13 +130,15 @@ class ScaledForce:
 
     def to_frame(self) -> pd.DataFrame:
         """Columns ``F21 [N]``, ``F21_lower [N]``, ``F21_upper [N]``, ``delta1 [1]``, ``extrapolated`` and, where
-        computed, ``risk [1]``."""
+        computed, ``risk [1]`` and ``stroke_end``."""
         v, u = self.variable, self.unit
         out = pd.DataFrame({f"{v} [{u}]": self.force, f"{v}_lower [{u}]": self.lower,
                             f"{v}_upper [{u}]": self.upper, "delta1 [1]": self.delta1,
                             "extrapolated": self.extrapolated})
         if self.risk is not None:
             out["risk [1]"] = self.risk
+        if self.stroke_end is not None:
+            out["stroke_end"] = self.stroke_end
         return out
 
 
@@ -390,6 +402,7 @@ class ScalingModel:
         outs = []
         with warnings.catch_warnings():  # each source's own warnings are replaced by the combined error score's
             warnings.simplefilter("ignore", ExtrapolationWarning)
+            warnings.simplefilter("ignore", EndStopWarning)  # said once below
             for model in bound:
                 if model._n_source not in (1, len(x)):
                     raise InputError(f"a source has {model._n_source} rows; give one row or one per target row "
@@ -414,7 +427,7 @@ class ScalingModel:
         extrapolated = np.logical_or.reduce([o.extrapolated for o in outs])
         lo, hi = _bounds(force, half)
         return ScaledForce(self.variable, self.unit, force, lo, hi, delta, extrapolated, cov,
-                           f"learned-scale, {k} sources", risk, warned, sigma)
+                           f"learned-scale, {k} sources", risk, warned, sigma, self._stroke_end(x, stacklevel=3))
 
     def predict_array(self, x: np.ndarray, *, coverage: float | None = None,
                       sequences: Sequence[np.ndarray] | np.ndarray | None = None,
@@ -455,7 +468,21 @@ class ScalingModel:
         elif outside.any():
             self._warn(g_out, int(outside.sum()), len(outside))
         return ScaledForce(self.variable, self.unit, force, lo, hi, delta, outside, spread[0], method, row_risk,
-                           warned, spread_of_rows)
+                           warned, spread_of_rows, self._stroke_end(x, stacklevel=4))
+
+    def _stroke_end(self, x: np.ndarray, stacklevel: int) -> np.ndarray | None:
+        """Rows of ``x`` whose tilt cylinder sits at a stroke end, with an :class:`EndStopWarning` (at
+        ``stacklevel`` counted from here) where any does; None when the model does not take ``tilt_stroke``."""
+        if "tilt_stroke" not in self.target_variables:
+            return None
+        column = x[:, self.target_variables.index("tilt_stroke")]
+        end = at_stroke_end(pd.DataFrame({"tilt_stroke": column}))
+        if end.any():
+            warnings.warn(f"{self.name}: {int(end.sum())} of {len(end)} target rows have the tilt cylinder at a stroke "
+                          "end, where its end stop carries load no pressure shows: F21 there is not scaled from the "
+                          "tilt pressure and its interval does not hold (ScaledForce.stroke_end per row)",
+                          EndStopWarning, stacklevel=stacklevel)
+        return end
 
     def _scored(self, score: IntervalRisk, features: np.ndarray, context: str, stacklevel: int
                 ) -> tuple[np.ndarray, np.ndarray]:
