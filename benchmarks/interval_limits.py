@@ -233,11 +233,11 @@ def report(table: pd.DataFrame, oracles: dict[str, float], predictors: dict[str,
               "| predictor | Spearman ρ with ln k (test) | log-SD of the error in ln k (test) |", "|---|---|---|"]
     for key, (rho, sd) in predictors.items():
         lines.append(f"| {key} | {'–' if np.isnan(rho) else f'{rho:.2f}'} | {sd:.2f} |")
-    lines += ["", f"Where the rows more than {MISS:.0%} off lie: with the tilt cylinder at an end of its stroke "
-              "(`scaling.evaluation.metrics.at_stroke_end`), where its end stop carries load no pressure sees and the "
-              "linkage statics the model's π1 rests on do not hold:", "",
+    lines += ["", f"Where the rows more than {100 * MISS:.0f} % off lie: with the tilt cylinder at an end of its "
+              "stroke (`scaling.evaluation.metrics.at_stroke_end`), where its end stop carries load no pressure sees "
+              "and the linkage statics the model's π1 rests on do not hold:", "",
               "| machines | with rows at a stroke end | rows at a stroke end | rows more than "
-              f"{MISS:.0%} off | of them at a stroke end | in 85–95 % with the stroke-end rows left out |",
+              f"{100 * MISS:.0f} % off | of them at a stroke end | in 85–95 % with the stroke-end rows left out |",
               "|---|---|---|---|---|---|"]
     for label, part in (("calibration", cal), ("test", test)):
         shares = part["stroke_end_share"]
@@ -246,7 +246,7 @@ def report(table: pd.DataFrame, oracles: dict[str, float], predictors: dict[str,
                      f"{int(part['misses_at_end'].sum())} | {int(in_band(part['coverage_off_end'].to_numpy()).sum())} "
                      f"of {len(part)} |")
     lines += ["", "Per machine:", "", "| line | machine | rows | coverage | k | k median | tolerance up / down | "
-              f"at a stroke end | more than {MISS:.0%} off (at the end) | coverage off the end |",
+              f"at a stroke end | more than {100 * MISS:.0f} % off (at the end) | coverage off the end |",
               "|---|---|---|---|---|---|---|---|---|---|"]
     for _, r in table.iterrows():
         lines.append(f"| {r['line']} | {r['machine']} | {r['rows']} | {r['coverage']:.2f} | {r['k']:.2f} | "
