@@ -18,7 +18,8 @@ JSON) and the signals are computed from the pose, cylinder extensions, payload a
 (:func:`scaling.data.product_line.add_design_signals`). The output holds the
 target's ``machine``/``episode``/``t``/``time`` columns (if any) and ``F21 [N]``, ``F21_lower [N]``, ``F21_upper [N]``,
 ``delta1 [1]``, ``extrapolated`` (and ``risk [1]`` where the model serves an error score; a product-line
-checkpoint whose build learnt none says so on stderr); it is printed as CSV
+checkpoint whose build learnt none says so on stderr; ``stroke_end`` where the model takes the tilt stroke: the
+rows whose tilt cylinder sits at an end of its stroke, warned on stderr); it is printed as CSV
 when ``--out`` is not given.
 
 Every ``name [unit]`` header of both files is checked, whether or not the model uses the column: a quantity
@@ -309,6 +310,7 @@ def run(args: argparse.Namespace) -> int:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", zoo.ExtrapolationWarning)
         warnings.simplefilter("always", zoo.SourceWarning)
+        warnings.simplefilter("always", zoo.EndStopWarning)
         try:
             if len(sources) > 1:
                 result = model.scale_force_sources(sources, target, coverage=args.coverage, threads=args.threads)

@@ -248,6 +248,8 @@ def test_predict_command_computes_the_design_signals_from_the_designs_named(
         out = pd.read_csv(tmp_path / "out.csv")
         np.testing.assert_allclose(out["F21 [N]"], expected.force, rtol=1e-9)
         _check_risk_column(out, expected.risk)
+        assert expected.stroke_end is not None  # the tilt stroke, computed from the logged extension
+        np.testing.assert_array_equal(out["stroke_end"], expected.stroke_end)
     capsys.readouterr()
     bad = [(["--target-design", "excavator"], "not a preset"),
            (["--target-design", f"{tmp_path / 'machines.json'}#pl9-9"], "pl1-0"),
