@@ -241,8 +241,9 @@ def report(table: pd.DataFrame, oracles: dict[str, float], predictors: dict[str,
               "|---|---|---|---|---|---|"]
     for label, part in (("calibration", cal), ("test", test)):
         shares = part["stroke_end_share"]
-        lines.append(f"| {label} | {int((shares > 0).sum())} of {len(part)} | "
-                     f"{float((shares * part['rows']).sum() / part['rows'].sum()):.1%} | {int(part['misses'].sum())} | "
+        at_end = 100 * float((shares * part["rows"]).sum() / part["rows"].sum())
+        lines.append(f"| {label} | {int((shares > 0).sum())} of {len(part)} | {at_end:.1f} % | "
+                     f"{int(part['misses'].sum())} | "
                      f"{int(part['misses_at_end'].sum())} | {int(in_band(part['coverage_off_end'].to_numpy()).sum())} "
                      f"of {len(part)} |")
     lines += ["", "Per machine:", "", "| line | machine | rows | coverage | k | k median | tolerance up / down | "
@@ -251,7 +252,7 @@ def report(table: pd.DataFrame, oracles: dict[str, float], predictors: dict[str,
     for _, r in table.iterrows():
         lines.append(f"| {r['line']} | {r['machine']} | {r['rows']} | {r['coverage']:.2f} | {r['k']:.2f} | "
                      f"{r['k_median']:.2f} | {r['tolerance_up']:.2f} / {r['tolerance_down']:.2f} | "
-                     f"{r['stroke_end_share']:.1%} | {r['misses']} ({r['misses_at_end']}) | "
+                     f"{100 * r['stroke_end_share']:.1f} % | {r['misses']} ({r['misses_at_end']}) | "
                      f"{r['coverage_off_end']:.2f} |")
     return "\n".join(lines) + "\n"
 
