@@ -427,7 +427,7 @@ class ScalingModel:
         extrapolated = np.logical_or.reduce([o.extrapolated for o in outs])
         lo, hi = _bounds(force, half)
         return ScaledForce(self.variable, self.unit, force, lo, hi, delta, extrapolated, cov,
-                           f"learned-scale, {k} sources", risk, warned, sigma, self._stroke_end(x, stacklevel=3))
+                           f"learned-scale, {k} sources", risk, warned, sigma, self._stroke_end(x, 3))
 
     def predict_array(self, x: np.ndarray, *, coverage: float | None = None,
                       sequences: Sequence[np.ndarray] | np.ndarray | None = None,
@@ -468,11 +468,12 @@ class ScalingModel:
         elif outside.any():
             self._warn(g_out, int(outside.sum()), len(outside))
         return ScaledForce(self.variable, self.unit, force, lo, hi, delta, outside, spread[0], method, row_risk,
-                           warned, spread_of_rows, self._stroke_end(x, stacklevel=4))
+                           warned, spread_of_rows, self._stroke_end(x if pick is None else x[pick - 1::pick], 4))
 
     def _stroke_end(self, x: np.ndarray, stacklevel: int) -> np.ndarray | None:
-        """Rows of ``x`` whose tilt cylinder sits at a stroke end, with an :class:`EndStopWarning` (at
-        ``stacklevel`` counted from here) where any does; None when the model does not take ``tilt_stroke``."""
+        """Rows of ``x`` (the rows served, one per prediction) whose tilt cylinder sits at a stroke end, with an
+        :class:`EndStopWarning` (at ``stacklevel`` counted from here) where any does; None when the model does not
+        take ``tilt_stroke``."""
         if "tilt_stroke" not in self.target_variables:
             return None
         column = x[:, self.target_variables.index("tilt_stroke")]
