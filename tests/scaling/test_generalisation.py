@@ -26,6 +26,7 @@ from scaling.evaluation.generalisation import (
     evaluate,
     judged_rows,
 )
+from scaling.evaluation.metrics import at_stroke_end
 from scaling.models import FFNN
 
 LINE = ProductLine(n_machines=6, seed=5, soils=("gravel",), pile_heights=(0.7,), dig_seeds=1, hold_episodes=1,
@@ -88,8 +89,6 @@ def test_every_held_out_machine_is_judged_against_the_baselines(frame: pd.DataFr
     assert set(result.extrapolation["machine_score"]) == set(split.test)
     assert result.fit_seconds["ffnn"] > 0
     # rows more than 10 % off, counted by hand from the table; each flagged by the risk, the stroke end or both
-    from scaling.evaluation.metrics import at_stroke_end
-
     misses = result.extrapolation["row_risk_misses"]["ffnn"]
     assert set(misses) == set(split.test)
     for m, count in misses.items():

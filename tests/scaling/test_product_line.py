@@ -70,11 +70,16 @@ def _pitch_from_cylinders(spec: LoaderSpec, lift_extension: float, tilt_extensio
         return float("nan")
 
 
+def _rests_off_stops(frame: pd.DataFrame) -> pd.Series:
+    """Mask of the rows where the bucket does not accelerate and the tilt cylinder is off its end stops."""
+    return (frame["a1"] < 0.05) & (frame["alpha1"] < 0.05) & frame["tilt_stroke"].between(0.02, 0.98)
+
+
 def _at_rest_off_stops(frame: pd.DataFrame) -> pd.DataFrame:
     """Rows where the bucket does not accelerate and the tilt cylinder is off its end stops, with ``pitch_gap``:
     measured pitch minus the pitch of the cylinder lengths (rad; NaN = lengths not assemblable on the design's
     branch) and ``w_link``: the weight of the bell crank, link B and tilt cylinder (N), which tilt_ratio omits."""
-    rest = frame[(frame["a1"] < 0.05) & (frame["alpha1"] < 0.05) & frame["tilt_stroke"].between(0.02, 0.98)].copy()
+    rest = frame[_rests_off_stops(frame)].copy()
     specs = LINE.specs()
     kin = [_pitch_from_cylinders(specs[m], le, te) for m, le, te in
            zip(rest["machine"], rest["lift_extension"], rest["tilt_extension"], strict=True)]
@@ -309,8 +314,7 @@ def test_a_tilt_cylinder_driven_onto_its_end_stop_carries_more_than_its_pressure
     assert (frame["tilt_load"][end] > 0.95).all() and (frame["Pf_tilt"][end] > 0).all()  # the oil at relief, pushing
     assert (frame["R_z"][end] < 0).all()  # the ground presses the bucket
     assert ratio[end].min() > 1.10, ratio[end].describe().to_dict()
-    rest = ~end & (frame["a1"] < 0.05) & (frame["alpha1"] < 0.05) & frame["tilt_stroke"].between(0.02, 0.98) \
-        & (frame["tilt_load"] > 0.05)
+    rest = ~end & _rests_off_stops(frame) & (frame["tilt_load"] > 0.05)
     assert rest.sum() >= 30
     assert (ratio[rest] - 1).abs().max() < 0.03, ratio[rest].describe().to_dict()
 
